@@ -1,0 +1,42 @@
+# Two commands for a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    ?= out
+
+.PHONY: demo test test-slow bench lint clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $@ $(VENV)/.installed
+
+## demo: simulate the paper's large room, calibrate it, write plots and a report into out/
+demo: $(VENV)/.installed
+	$(BIN)/python -m bayescal demo --out $(OUT) --force
+
+## test: the default test suite (a few minutes on 2 cores)
+test: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q
+
+## test-slow: the long statistical validation (coverage, SBC, Monte-Carlo re-fits)
+test-slow: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q -m slow
+
+## bench: timings written to docs/performance.md
+bench: $(VENV)/.installed
+	$(BIN)/python studies/benchmark.py --out docs/performance.md
+
+lint: $(VENV)/.installed-test
+	$(BIN)/python -m pip install --quiet ruff
+	$(BIN)/ruff check bayescal tests studies
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info

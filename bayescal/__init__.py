@@ -1,0 +1,32 @@
+"""bayescal: probabilistic calibration of a structured-light catadioptric stereo sensor.
+
+A camera looks into a parabolic mirror; below it, on the same axis, a laser
+cone lights the walls. bayescal calibrates the eight sensor parameters from
+laser pixels and approximate 3D points (the paper's simultaneous method), the
+classical way (sequential), and as a Bayesian posterior with emcee.
+
+See ``docs/`` for the model, conventions and the public API.
+"""
+
+from .camera import backproject, project
+from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
+from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .scenes import CalibrationData, Dataset, room_walls, simulate_room
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "PARAM_NAMES",
+    "IDENTIFIABLE_NAMES",
+    "SensorParams",
+    "project",
+    "backproject",
+    "triangulate",
+    "triangulate_plane",
+    "cone_point",
+    "pixel_azimuth",
+    "simulate_room",
+    "room_walls",
+    "Dataset",
+    "CalibrationData",
+]

@@ -1,0 +1,205 @@
+"""The eight sensor parameters and their seven identifiable combinations.
+
+The paper's parameters are ``(xi, phi, alpha_u, alpha_v, u0, v0, h, beta)``:
+
+* ``xi``, ``phi``: mirror shape (parabolic mirror: ``xi = 1``, ``phi = 0``);
+* ``alpha_u``, ``alpha_v`` (px), ``u0``, ``v0`` (px): camera intrinsics;
+* ``h`` (mm): distance from the mirror focus down to the laser-cone apex;
+* ``beta`` (rad): half-angle of the laser cone, measured from the vertical axis.
+
+``phi``, ``alpha_u`` and ``alpha_v`` enter the model only through
+``gamma_u = alpha_u * (xi + phi)`` and ``gamma_v = alpha_v * (xi + phi)``
+(see ``docs/model.md``), so only seven combinations are identifiable::
+
+    theta = (xi, gamma_u, gamma_v, u0, v0, h, beta)
+
+Functions here convert between the two, vectorized over leading axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import astuple, dataclass, fields
+
+import numpy as np
+
+__all__ = [
+    "PARAM_NAMES",
+    "IDENTIFIABLE_NAMES",
+    "SensorParams",
+    "as_param_array",
+    "to_identifiable",
+    "from_identifiable",
+    "identifiable_jacobian",
+]
+
+PARAM_NAMES = ("xi", "phi", "alpha_u", "alpha_v", "u0", "v0", "h", "beta")
+IDENTIFIABLE_NAMES = ("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta")
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """The eight parameters of the sensor (paper's notation).
+
+    Parameters
+    ----------
+    xi : float
+        Mirror parameter of the unified model (1 for a parabolic mirror).
+    phi : float
+        Mirror/scale parameter (0 for the paper's parabolic mirror).
+    alpha_u, alpha_v : float
+        Focal scale factors in pixels (``alpha_v < 0`` flips the image v axis).
+    u0, v0 : float
+        Principal point in pixels.
+    h : float
+        Height of the mirror focus above the laser-cone apex, in mm (> 0).
+    beta : float
+        Half-angle of the laser cone from the vertical axis, in radians,
+        strictly between 0 and pi/2.
+
+    Examples
+    --------
+    >>> p = SensorParams.paper()
+    >>> SensorParams.from_array(p.to_array()) == p
+    True
+    """
+
+    xi: float
+    phi: float
+    alpha_u: float
+    alpha_v: float
+    u0: float
+    v0: float
+    h: float
+    beta: float
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise TypeError(f"SensorParams.{f.name} must be a number, got {value!r}") from None
+            if not np.isfinite(value):
+                raise ValueError(f"SensorParams.{f.name} must be finite, got {value!r}")
+            object.__setattr__(self, f.name, value)
+        if self.xi + self.phi <= 0:
+            raise ValueError(f"xi + phi must be positive, got xi={self.xi}, phi={self.phi}")
+        if self.xi < 0:
+            raise ValueError(f"xi must be non-negative, got {self.xi}")
+        if self.alpha_u == 0 or self.alpha_v == 0:
+            raise ValueError(
+                f"alpha_u and alpha_v must be non-zero, got {self.alpha_u}, {self.alpha_v}"
+            )
+        if self.h <= 0:
+            raise ValueError(f"h must be positive (mm), got {self.h}")
+        if not 0 < self.beta < np.pi / 2:
+            raise ValueError(f"beta must lie in (0, pi/2) radians, got {self.beta}")
+
+    @classmethod
+    def paper(cls):
+        """The paper's simulated sensor: parabolic mirror, 55 px, h = 200 mm, beta = 60 deg."""
+        return cls(xi=1.0, phi=0.0, alpha_u=55.0, alpha_v=-55.0, u0=400.0, v0=300.0,
+                   h=200.0, beta=np.pi / 3)
+
+    def to_array(self):
+        """Return the parameters as an array of shape (8,), order :data:`PARAM_NAMES`."""
+        return np.array(astuple(self), dtype=float)
+
+    @classmethod
+    def from_array(cls, a):
+        """Build from an array of shape (8,) in the order of :data:`PARAM_NAMES`."""
+        a = np.asarray(a, dtype=float)
+        if a.shape != (8,):
+            raise ValueError(f"a must have shape (8,) in the order {PARAM_NAMES}, got {a.shape}")
+        return cls(*a.tolist())
+
+    def to_identifiable(self):
+        """Return ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``, shape (7,)."""
+        return to_identifiable(self.to_array())
+
+    @classmethod
+    def from_identifiable(cls, theta, phi=0.0):
+        """Build from the seven identifiable coordinates and a chosen ``phi``.
+
+        Every ``phi`` gives the same pixels and reconstructions (the data cannot
+        tell them apart); ``alpha_u``/``alpha_v`` are rescaled to match.
+        """
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (7,):
+            raise ValueError(f"theta must have shape (7,) in the order {IDENTIFIABLE_NAMES}, "
+                             f"got {theta.shape}")
+        return cls.from_array(from_identifiable(theta, phi))
+
+    def replace(self, **changes):
+        """Return a copy with some parameters changed (names as in :data:`PARAM_NAMES`)."""
+        unknown = set(changes) - set(PARAM_NAMES)
+        if unknown:
+            raise TypeError(f"unknown parameter name(s) {sorted(unknown)}; expected {PARAM_NAMES}")
+        d = dict(zip(PARAM_NAMES, astuple(self)))
+        d.update(changes)
+        return SensorParams(**d)
+
+    def as_dict(self):
+        """Return ``{name: value}`` for the eight parameters."""
+        return dict(zip(PARAM_NAMES, astuple(self)))
+
+
+def as_param_array(params, name="params"):
+    """Return parameters as an array of shape (..., 8).
+
+    Accepts a :class:`SensorParams` or an array whose last axis has the 8
+    parameters (for vectorized evaluation over walkers).
+    """
+    if isinstance(params, SensorParams):
+        return params.to_array()
+    try:
+        a = np.asarray(params, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a SensorParams or an array of shape (..., 8), "
+                        f"got {type(params).__name__}") from None
+    if a.ndim == 0 or a.shape[-1] != 8:
+        raise ValueError(f"{name} must be a SensorParams or an array of shape (..., 8), "
+                         f"got shape {a.shape}")
+    return a
+
+
+def to_identifiable(a):
+    """Map paper parameters (..., 8) to identifiable coordinates (..., 7)."""
+    a = np.asarray(a, dtype=float)
+    xi, phi, au, av, u0, v0, h, beta = np.moveaxis(a, -1, 0)
+    s = xi + phi
+    return np.stack([xi, au * s, av * s, u0, v0, h, beta], axis=-1)
+
+
+def from_identifiable(theta, phi):
+    """Map identifiable coordinates (..., 7) and ``phi`` (broadcastable) to (..., 8)."""
+    theta = np.asarray(theta, dtype=float)
+    xi, gu, gv, u0, v0, h, beta = np.moveaxis(theta, -1, 0)
+    phi = np.broadcast_to(np.asarray(phi, dtype=float), xi.shape)
+    s = xi + phi
+    return np.stack([xi, phi, gu / s, gv / s, u0, v0, h, beta], axis=-1)
+
+
+def identifiable_jacobian(theta, phi):
+    """Jacobian of :func:`from_identifiable` with respect to ``(theta, phi)``.
+
+    Returns
+    -------
+    ndarray, shape (..., 8, 8)
+        ``J[..., i, j] = d a_i / d (theta_0..6, phi)_j``; used to map an 8x8
+        covariance of ``(theta, phi)`` to the paper's eight parameters.
+    """
+    theta = np.asarray(theta, dtype=float)
+    xi, gu, gv = theta[..., 0], theta[..., 1], theta[..., 2]
+    phi = np.broadcast_to(np.asarray(phi, dtype=float), xi.shape)
+    s = xi + phi
+    J = np.zeros(theta.shape[:-1] + (8, 8))
+    J[..., 0, 0] = 1.0                       # xi
+    J[..., 1, 7] = 1.0                       # phi
+    J[..., 2, 1] = 1.0 / s                   # alpha_u = gu / (xi + phi)
+    J[..., 2, 0] = J[..., 2, 7] = -gu / s**2
+    J[..., 3, 2] = 1.0 / s                   # alpha_v = gv / (xi + phi)
+    J[..., 3, 0] = J[..., 3, 7] = -gv / s**2
+    for k in (3, 4, 5, 6):                  # u0, v0, h, beta
+        J[..., k + 1, k] = 1.0
+    return J

@@ -1,0 +1,125 @@
+"""Figures: the image plane (paper's Fig. 6b) and the room (Fig. 6a).
+
+Every function takes an optional matplotlib ``ax`` and returns the figure, so
+it can be composed or saved by the caller. matplotlib is imported lazily.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import as_pixels, as_points
+
+__all__ = ["plot_image", "plot_room", "savefig"]
+
+
+def _axes(ax, projection=None, figsize=(6, 5)):
+    import matplotlib.pyplot as plt
+
+    if ax is not None:
+        return ax.figure, ax
+    fig = plt.figure(figsize=figsize)
+    return fig, fig.add_subplot(111, projection=projection)
+
+
+def plot_image(pixels, *, params=None, image_size=(800, 600), ax=None, label="laser pixels",
+               **scatter_kw):
+    """Plot laser pixels in the image plane (paper's Fig. 6b).
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        ``(u, v)`` in px.
+    params : SensorParams, optional
+        If given, the principal point is marked.
+    image_size : (int, int), optional
+        Width and height of the image frame drawn, px.
+    ax : matplotlib.axes.Axes, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    pixels = as_pixels(pixels, allow_nan=True)
+    fig, ax = _axes(ax)
+    kw = {"s": 4, "c": "tab:red"}
+    kw.update(scatter_kw)
+    ax.scatter(pixels[:, 0], pixels[:, 1], label=label, **kw)
+    if params is not None:
+        ax.plot(params.u0, params.v0, "k+", ms=10, label="principal point")
+    w, h = image_size
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title("Image plane")
+    ax.legend(loc="upper right", fontsize="small")
+    return fig
+
+
+def plot_room(points, *, walls=None, approx_points=None, view="top", ax=None):
+    """Plot the room and its laser points (paper's Fig. 6a).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Laser points in frame C, mm.
+    walls : ndarray, shape (W, 2, 2), optional
+        Wall segments (horizontal end points), mm.
+    approx_points : array_like, shape (N, 3), optional
+        Approximate points, drawn in grey.
+    view : {"top", "3d"}
+        Top view (x, y) or a 3D view.
+    ax : matplotlib.axes.Axes, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    points = as_points(points, allow_nan=True)
+    if view not in ("top", "3d"):
+        raise ValueError(f"view must be 'top' or '3d', got {view!r}")
+    fig, ax = _axes(ax, projection="3d" if view == "3d" else None)
+    if view == "top":
+        if walls is not None:
+            for seg in np.asarray(walls):
+                ax.plot(seg[:, 0], seg[:, 1], "k-", lw=1.5)
+        if approx_points is not None:
+            ap = as_points(approx_points, "approx_points", allow_nan=True)
+            ax.scatter(ap[:, 0], ap[:, 1], s=3, c="0.6", label="approximate points")
+        ax.scatter(points[:, 0], points[:, 1], s=4, c="tab:red", label="laser points")
+        ax.plot(0, 0, "b^", label="sensor")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_title("Room, top view")
+        ax.legend(loc="upper right", fontsize="small")
+    else:
+        if walls is not None:
+            zlo, zhi = np.nanmin(points[:, 2]), np.nanmax(points[:, 2])
+            for seg in np.asarray(walls):
+                for z in (zlo, zhi):
+                    ax.plot(seg[:, 0], seg[:, 1], [z, z], "k-", lw=0.8)
+                for j in (0, 1):
+                    ax.plot([seg[j, 0]] * 2, [seg[j, 1]] * 2, [zlo, zhi], "k-", lw=0.8)
+        ax.scatter(points[:, 0], points[:, 1], points[:, 2], s=3, c="tab:red")
+        ax.scatter([0], [0], [0], c="b", marker="^")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        ax.set_title("Room, 3D view")
+    return fig
+
+
+def savefig(fig, path, *, dpi=120):
+    """Save ``fig`` to ``path`` (parent folders created) and close it."""
+    import pathlib
+
+    import matplotlib.pyplot as plt
+
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return path
