@@ -1,0 +1,305 @@
+"""The likelihood of laser pixels and approximate 3D points (one model for all fitters).
+
+Data: laser pixels ``pixels`` (N, 2) and approximate points ``approx_points``
+(N, 3). Unknowns: the identifiable parameters ``theta`` (7,) and, per laser
+point, its scene coordinates ``q_i = (x_i, y_i)`` (the horizontal position
+where the ray meets the wall); the cone gives ``P_i = (x_i, y_i,
+rho_i / tan(beta) - h)``. The model (``docs/bayes.md``)::
+
+    pixels_i        ~ N(project(theta, P_i), sigma_px^2 I_2)
+    approx_points_i ~ N(P_i, diag(sigma_scene_i^2))       (inf = axis not used)
+
+Each point contributes five whitened residuals: two pixel rows, three scene
+rows. :class:`LaserLikelihood` returns them with their Jacobians (analytic),
+vectorized over any leading axes (walkers) and the N points; the least
+squares (:mod:`bayescal.simultaneous`), the collapsed sampler and the
+brute-force joint sampler (:mod:`bayescal.sampling`) all call it.
+
+Noise levels are either given or inferred: ``sigma_px = None`` adds
+``log sigma_px`` to the sampled vector; ``sigma_scene = None`` adds
+``log kappa`` with ``sigma_scene_i = kappa * rho_i`` on every axis (a relative
+error of the approximate point's horizontal range ``rho_i``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import as_pixels, as_points, check_positive
+from .camera import project_theta
+from .laser import cone_point_theta, triangulate_theta
+
+__all__ = ["LaserLikelihood"]
+
+_LOG2PI = np.log(2 * np.pi)
+
+
+def _inv2(C):
+    """Inverse and determinant of stacked 2x2 matrices, shape (..., 2, 2)."""
+    a, b, c, d = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
+    det = a * d - b * c
+    inv = np.empty_like(C)
+    inv[..., 0, 0] = d / det
+    inv[..., 0, 1] = -b / det
+    inv[..., 1, 0] = -c / det
+    inv[..., 1, 1] = a / det
+    return inv, det
+
+
+class LaserLikelihood:
+    """Pixel and scene-prior likelihood of N laser points.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        Laser pixels ``(u, v)``, px.
+    approx_points : array_like, shape (N, 3)
+        Approximate 3D laser points in frame C, mm.
+    sigma_px : float or None
+        Pixel noise standard deviation, px; ``None`` = inferred.
+    sigma_scene : float, array_like broadcastable to (N, 3), or None
+        Standard deviation of ``approx_points - true points``, mm; ``inf``
+        marks an axis that carries no information; ``None`` = inferred as
+        ``kappa * rho_i``.
+
+    Attributes
+    ----------
+    n_noise : int
+        Number of inferred noise parameters appended to ``theta`` (0, 1 or 2).
+    """
+
+    def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene):
+        self.pixels = as_pixels(pixels, "pixels")
+        self.approx = as_points(approx_points, "approx_points")
+        if self.pixels.ndim != 2 or self.approx.ndim != 2:
+            raise ValueError(f"pixels must have shape (N, 2) and approx_points (N, 3), got "
+                             f"{self.pixels.shape} and {self.approx.shape}")
+        if len(self.pixels) != len(self.approx):
+            raise ValueError(f"pixels and approx_points must have the same length N, got "
+                             f"{len(self.pixels)} and {len(self.approx)}")
+        self.n = len(self.pixels)
+        self.infer_px = sigma_px is None
+        self.infer_scene = sigma_scene is None
+        self.sigma_px = None if self.infer_px else check_positive(sigma_px, "sigma_px")
+        self.rho = np.hypot(self.approx[:, 0], self.approx[:, 1])
+        if self.infer_scene:
+            if np.any(self.rho <= 0):
+                raise ValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
+                                 "scene error; give sigma_scene explicitly")
+            self.w_scene = None
+            self._scene_mask = np.ones((self.n, 3), bool)
+        else:
+            try:
+                s = np.asarray(sigma_scene, dtype=float)
+            except (TypeError, ValueError):
+                raise TypeError(f"sigma_scene must be a float, an array or None, got "
+                                f"{type(sigma_scene).__name__}") from None
+            if np.any(np.isnan(s)) or np.any(s <= 0):
+                raise ValueError("sigma_scene must be positive everywhere (inf allowed: no "
+                                 f"information on that axis), got min {np.min(s)}")
+            try:
+                s = np.broadcast_to(s, (self.n, 3))
+            except ValueError:
+                raise ValueError(f"sigma_scene must be a float or broadcastable to (N, 3) = "
+                                 f"{(self.n, 3)}, got shape {np.shape(sigma_scene)}") from None
+            self.w_scene = np.where(np.isfinite(s), 1.0 / s, 0.0)
+            self._scene_mask = np.isfinite(s)
+        self.n_scene_rows = int(self._scene_mask.sum())
+        self.n_noise = int(self.infer_px) + int(self.infer_scene)
+
+    # -- noise ---------------------------------------------------------------
+    def noise(self, extra):
+        """Noise levels from the inferred log-noise entries.
+
+        Parameters
+        ----------
+        extra : ndarray, shape (..., n_noise)
+            ``log sigma_px`` then ``log kappa`` (only those inferred).
+
+        Returns
+        -------
+        sigma_px : ndarray, shape (...)
+        w_scene : ndarray, shape (..., N, 3)
+            Inverse scene standard deviations (0 on unused axes).
+        log_norm : ndarray, shape (..., N)
+            ``-log`` of the Gaussian normalisers per point.
+        """
+        extra = np.asarray(extra, dtype=float)
+        lead = extra.shape[:-1]
+        k = 0
+        if self.infer_px:
+            sig = np.exp(extra[..., k])
+            k += 1
+        else:
+            sig = np.full(lead, self.sigma_px)
+        if self.infer_scene:
+            kappa = np.exp(extra[..., k])
+            w = 1.0 / (kappa[..., None, None] * self.rho[:, None])
+            w = np.broadcast_to(w, lead + (self.n, 3))
+        else:
+            w = np.broadcast_to(self.w_scene, lead + (self.n, 3))
+        n_rows = 2 + self._scene_mask.sum(axis=1)
+        with np.errstate(divide="ignore"):
+            log_w = np.where(self._scene_mask, np.log(w), 0.0)
+        log_norm = (-2.0 * np.log(sig)[..., None] + log_w.sum(axis=-1)
+                    - 0.5 * n_rows * _LOG2PI)
+        return sig, w, log_norm
+
+    def split(self, psi):
+        """Split a sampled vector ``(..., 7 + n_noise)`` into theta and noise entries."""
+        psi = np.asarray(psi, dtype=float)
+        return psi[..., :7], psi[..., 7:]
+
+    # -- residuals -----------------------------------------------------------
+    def residuals(self, theta, q, sigma_px, w_scene, *, jacobian=False):
+        """Whitened residuals of every point.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (..., 7)
+        q : ndarray, shape (..., N, 2)
+            Scene coordinates (x, y) of the points, mm.
+        sigma_px : ndarray, shape (...)
+        w_scene : ndarray, shape (..., N, 3)
+        jacobian : bool
+
+        Returns
+        -------
+        R : ndarray, shape (..., N, 5)
+            Two pixel rows then three scene rows (zero where unused); NaN
+            where a point leaves the projection's domain.
+        J_theta : ndarray, shape (..., N, 5, 7)
+            Only with ``jacobian=True``.
+        J_q : ndarray, shape (..., N, 5, 2)
+            Only with ``jacobian=True``.
+        """
+        th = np.asarray(theta)[..., None, :]
+        if not jacobian:
+            P = cone_point_theta(th, q)
+            uv, _ = project_theta(th, P)
+        else:
+            P, dxy, dthc = cone_point_theta(th, q, jacobian=True)
+            uv, _, dPp, dthp = project_theta(th, P, jacobian=True)
+        inv_s = 1.0 / np.asarray(sigma_px)[..., None, None]
+        shape = uv.shape[:-1]
+        R = np.empty(shape + (5,))
+        R[..., :2] = (uv - self.pixels) * inv_s
+        R[..., 2:] = (P - self.approx) * w_scene
+        if not jacobian:
+            return R
+        Jq = np.empty(shape + (5, 2))
+        Jq[..., :2, :] = (dPp[..., :, :2] + dPp[..., :, 2:3] * dxy[..., 2:3, :]) * inv_s[..., None]
+        Jq[..., 2:, :] = dxy * w_scene[..., :, None]
+        Jt = np.empty(shape + (5, 7))
+        Jt[..., :2, :] = (dthp + dPp[..., :, 2:3] * dthc[..., 2:3, :]) * inv_s[..., None]
+        Jt[..., 2:, :] = dthc * w_scene[..., :, None]
+        return R, Jt, Jq
+
+    # -- per-point Laplace step ----------------------------------------------
+    def initial_q(self, theta):
+        """A starting value of the scene coordinates: the approximate points' (x, y),
+        or the triangulated pixels where no scene information is given in x/y."""
+        q = self.approx[:, :2].copy()
+        if not self.infer_scene:
+            blind = ~self._scene_mask[:, :2].all(axis=1)
+            if np.any(blind):
+                P, ok = triangulate_theta(np.asarray(theta, float), self.pixels[blind])
+                q[blind] = np.where(ok[:, None], P[:, :2], q[blind])
+        return q
+
+    def _point_terms(self, theta, x, y, sig, w):
+        """Hot path of :meth:`laplace`: residuals and q-normal equations, elementwise.
+
+        Same quantities as :meth:`residuals` (tested against it), written out
+        for 2x2 blocks so that walkers x points cost a few dozen array ops.
+        Returns ``(rr, C00, C01, C11, g0, g1)`` with ``rr = |R|^2``.
+        """
+        xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
+        T = np.tan(beta)
+        rho = np.sqrt(x * x + y * y)
+        gx, gy = x / (rho * T), y / (rho * T)
+        z = rho / T - h
+        r = np.sqrt(rho * rho + z * z)
+        D = xi * r - z
+        iD = np.where(D > 0, 1.0 / D, np.nan)
+        mx, my = x * iD, y * iD
+        inv_s = 1.0 / sig[..., None]
+        ru = (gu * mx + u0 - self.pixels[:, 0]) * inv_s
+        rv = (gv * my + v0 - self.pixels[:, 1]) * inv_s
+        xr = xi / r
+        dDx = xr * (x + z * gx) - gx
+        dDy = xr * (y + z * gy) - gy
+        a, b = gu * iD * inv_s, gv * iD * inv_s
+        ux, uy = a * (1.0 - mx * dDx), -a * mx * dDy
+        vx, vy = -b * my * dDx, b * (1.0 - my * dDy)
+        wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+        rx, ry, rz = (x - self.approx[:, 0]) * wx, (y - self.approx[:, 1]) * wy, \
+            (z - self.approx[:, 2]) * wz
+        wz2 = wz * wz
+        C00 = ux * ux + vx * vx + wx * wx + wz2 * gx * gx
+        C01 = ux * uy + vx * vy + wz2 * gx * gy
+        C11 = uy * uy + vy * vy + wy * wy + wz2 * gy * gy
+        g0 = ux * ru + vx * rv + wx * rx + wz * gx * rz
+        g1 = uy * ru + vy * rv + wy * ry + wz * gy * rz
+        rr = ru * ru + rv * rv + rx * rx + ry * ry + rz * rz
+        return rr, C00, C01, C11, g0, g1
+
+    def laplace(self, psi, q0, *, n_iter=4):
+        """Integrate each point's scene coordinates out by a Gauss-Newton/Laplace step.
+
+        Parameters
+        ----------
+        psi : ndarray, shape (..., 7 + n_noise)
+        q0 : ndarray, shape (..., N, 2) or (N, 2)
+            Starting scene coordinates.
+        n_iter : int
+            Gauss-Newton iterations (the start is usually the MAP's, so a few
+            suffice); the value returned also includes the quadratic model's
+            remaining gain ``g^T C^-1 g / 2``, so it is accurate one step early.
+
+        Returns
+        -------
+        log_marginal : ndarray, shape (...)
+            Sum over points of ``log int p(pixels_i, approx_i | theta, q_i) dq_i``
+            (Laplace approximation with the Gauss-Newton Hessian; exact for a
+            model linear in q); ``-inf`` outside the model's domain.
+        q : ndarray, shape (..., N, 2)
+            Conditional modes.
+        C : ndarray, shape (..., N, 2, 2)
+            Conditional precision matrices ``J_q^T J_q`` (inverse = covariance).
+        """
+        theta, extra = self.split(psi)
+        sig, w, log_norm = self.noise(extra)
+        q = np.broadcast_to(q0, theta.shape[:-1] + (self.n, 2))
+        x, y = q[..., 0].copy(), q[..., 1].copy()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for it in range(n_iter + 1):
+                rr, C00, C01, C11, g0, g1 = self._point_terms(theta, x, y, sig, w)
+                det = C00 * C11 - C01 * C01
+                d0 = (C11 * g0 - C01 * g1) / det
+                d1 = (C00 * g1 - C01 * g0) / det
+                if it == n_iter:
+                    break
+                x = x - d0
+                y = y - d1
+            per_point = (-0.5 * rr + 0.5 * (g0 * d0 + g1 * d1) - 0.5 * np.log(det) + _LOG2PI
+                         + log_norm)
+        total = per_point.sum(axis=-1)
+        C = np.stack([np.stack([C00, C01], -1), np.stack([C01, C11], -1)], -2)
+        return np.where(np.isfinite(total), total, -np.inf), np.stack([x, y], -1), C
+
+    def log_joint(self, psi, q):
+        """Exact log likelihood of ``(psi, q)``, shape (...) (for the brute-force sampler)."""
+        theta, extra = self.split(psi)
+        sig, w, log_norm = self.noise(extra)
+        R = self.residuals(theta, q, sig, w)
+        total = np.sum(-0.5 * np.sum(R * R, axis=-1) + log_norm, axis=-1)
+        return np.where(np.isfinite(total), total, -np.inf)
+
+    def point_log_density(self, psi, q):
+        """Per-point exact log density of ``q`` given ``psi`` (up to constants), (..., N)."""
+        theta, extra = self.split(psi)
+        sig, w, _ = self.noise(extra)
+        R = self.residuals(theta, q, sig, w)
+        out = -0.5 * np.sum(R * R, axis=-1)
+        return np.where(np.isfinite(out), out, -np.inf)
