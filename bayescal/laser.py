@@ -117,7 +117,7 @@ def triangulate_theta(theta, pixels, *, jacobian=False):
     dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
     s = np.sqrt(dx * dx + dy * dy)
     g = s - dz * T
-    valid = out[1] & (g > 0)
+    valid = out[1] & (g > 0) & (s > 0)          # s = 0: straight down, only the apex
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(valid, h * T / g, np.nan)
     pts = t[..., None] * d
@@ -196,7 +196,8 @@ def triangulate_plane(params, pixels, plane, *, return_valid=False):
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -plane[..., 3] / denom
     valid = ok & np.isfinite(t) & (t > 0)
-    pts = np.where(valid[..., None], t[..., None] * rays, np.nan)
+    with np.errstate(invalid="ignore"):
+        pts = np.where(valid[..., None], t[..., None] * rays, np.nan)
     return (pts, valid) if return_valid else pts
 
 

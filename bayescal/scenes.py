@@ -205,7 +205,7 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
     az = np.linspace(0, 2 * np.pi, n_laser, endpoint=False) + 0.5 * np.pi / n_laser
     normals_w = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], float)
     normals_c = normals_w @ R.T
-    offs_c = -d + normals_c @ translation          # plane n_c . P = d + n_c . t  ->  n.P + off = 0
+    offs_c = -d - normals_c @ translation          # plane n_c . P = d + n_c . t  ->  n.P + off = 0
     cone_dir = np.stack([np.sin(params.beta) * np.cos(az), np.sin(params.beta) * np.sin(az),
                          np.full_like(az, np.cos(params.beta))], axis=-1)
     apex = np.array([0.0, 0.0, -params.h])
@@ -286,7 +286,8 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         raise TypeError(f"params must be a SensorParams, got {type(params).__name__}")
     nominal = SensorParams.paper() if nominal is None else nominal
     range_mm = check_positive(range_mm, "range_mm")
-    if isinstance(n_points, bool) or int(n_points) != n_points or n_points < 1:
+    if (isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer, float))
+            or int(n_points) != n_points or n_points < 1):
         raise ValueError(f"n_points must be a positive integer, got {n_points!r}")
     n_points = int(n_points)
     sigma_px = check_positive(sigma_px, "sigma_px", allow_zero=True)
