@@ -10,8 +10,20 @@ See ``docs/`` for the model, conventions and the public API.
 
 from .camera import backproject, project
 from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
+from .metrics import reconstruction_error, reconstruction_errors
 from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .posterior import Posterior, Reconstruction, load_posterior
+from .priors import Prior, default_prior
+from .results import (
+    CalibrationResult,
+    ConvergenceError,
+    IdentifiabilityReport,
+    identifiability_report,
+)
+from .sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .scenes import CalibrationData, Dataset, room_walls, simulate_room
+from .sequential import calibrate_sequential
+from .simultaneous import calibrate_simultaneous
 
 __version__ = "0.1.0"
 
@@ -29,4 +41,20 @@ __all__ = [
     "room_walls",
     "Dataset",
     "CalibrationData",
+    "calibrate_sequential",
+    "CalibrationResult",
+    "ConvergenceError",
+    "IdentifiabilityReport",
+    "identifiability_report",
+    "reconstruction_error",
+    "reconstruction_errors",
+    "calibrate_simultaneous",
+    "sample_posterior",
+    "Posterior",
+    "Reconstruction",
+    "load_posterior",
+    "Prior",
+    "default_prior",
+    "NotConvergedWarning",
+    "NotConvergedError",
 ]

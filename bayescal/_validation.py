@@ -33,7 +33,9 @@ def as_finite_array(value, name, *, last_dim=None, allow_nan=False, dtype=float)
     try:
         arr = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be a numeric array, got {type(value).__name__}: {exc}") from None
+        raise TypeError(
+            f"{name} must be a numeric array, got {type(value).__name__}: {exc}"
+        ) from None
     if last_dim is not None and (arr.ndim == 0 or arr.shape[-1] != last_dim):
         raise ValueError(f"{name} must have shape (..., {last_dim}), got shape {arr.shape}")
     if not allow_nan and not np.all(np.isfinite(arr)):

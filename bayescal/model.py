@@ -29,7 +29,10 @@ from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
 
-__all__ = ["LaserLikelihood"]
+__all__ = ["LaserLikelihood", "POINT_PRIORS"]
+
+#: priors of the latent scene coordinates: see :class:`LaserLikelihood`
+POINT_PRIORS = ("jeffreys", "flat")
 
 _LOG2PI = np.log(2 * np.pi)
 
@@ -61,6 +64,15 @@ class LaserLikelihood:
         Standard deviation of ``approx_points - true points``, mm; ``inf``
         marks an axis that carries no information; ``None`` = inferred as
         ``kappa * rho_i``.
+    point_prior : {"jeffreys", "flat"}
+        Prior of each point's scene coordinates given the parameters. A flat
+        prior makes the parameters' posterior inherit a Neyman-Scott bias from
+        the N incidental points (the points' information ``J_q^T J_q`` depends
+        on theta; measured at about -1.8 posterior sd on h in the 1000 mm room,
+        see ``docs/bayes.md``). The Jeffreys prior ``|J_q^T J_q|^(1/2)`` (the
+        reference prior for incidental parameters) cancels that term: the
+        collapsed likelihood becomes the profile likelihood, whose score has
+        zero mean. Default "jeffreys".
 
     Attributes
     ----------
@@ -68,7 +80,10 @@ class LaserLikelihood:
         Number of inferred noise parameters appended to ``theta`` (0, 1 or 2).
     """
 
-    def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene):
+    def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene, point_prior="jeffreys"):
+        if point_prior not in POINT_PRIORS:
+            raise ValueError(f"point_prior must be one of {POINT_PRIORS}, got {point_prior!r}")
+        self.point_prior = point_prior
         self.pixels = as_pixels(pixels, "pixels")
         self.approx = as_points(approx_points, "approx_points")
         if self.pixels.ndim != 2 or self.approx.ndim != 2:
@@ -106,6 +121,20 @@ class LaserLikelihood:
             self._scene_mask = np.isfinite(s)
         self.n_scene_rows = int(self._scene_mask.sum())
         self.n_noise = int(self.infer_px) + int(self.infer_scene)
+        self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
+        self.ref_kappa = 0.05
+
+    def set_reference_noise(self, *, sigma_px=None, kappa=None):
+        """Noise levels at which the Jeffreys prior of the points is evaluated.
+
+        Only matters for inferred noise: the prior ``|C(theta, q)|^(1/2)`` is
+        taken at these fixed levels so that it depends on ``theta`` only and the
+        noise posterior keeps the flat-prior (REML-like) degrees of freedom.
+        """
+        if sigma_px is not None:
+            self.ref_sigma_px = check_positive(sigma_px, "sigma_px")
+        if kappa is not None:
+            self.ref_kappa = check_positive(kappa, "kappa")
 
     # -- noise ---------------------------------------------------------------
     def noise(self, extra):
@@ -212,7 +241,8 @@ class LaserLikelihood:
 
         Same quantities as :meth:`residuals` (tested against it), written out
         for 2x2 blocks so that walkers x points cost a few dozen array ops.
-        Returns ``(rr, C00, C01, C11, g0, g1)`` with ``rr = |R|^2``.
+        Returns ``(rr, Cp, Cs, g0, g1)``: ``rr = |R|^2``, the pixel and scene
+        parts of ``J_q^T J_q`` as ``(C00, C01, C11)`` triples, and the gradient.
         """
         xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
         T = np.tan(beta)
@@ -236,13 +266,29 @@ class LaserLikelihood:
         rx, ry, rz = (x - self.approx[:, 0]) * wx, (y - self.approx[:, 1]) * wy, \
             (z - self.approx[:, 2]) * wz
         wz2 = wz * wz
-        C00 = ux * ux + vx * vx + wx * wx + wz2 * gx * gx
-        C01 = ux * uy + vx * vy + wz2 * gx * gy
-        C11 = uy * uy + vy * vy + wy * wy + wz2 * gy * gy
+        Cp = (ux * ux + vx * vx, ux * uy + vx * vy, uy * uy + vy * vy)
+        Cs = (wx * wx + wz2 * gx * gx, wz2 * gx * gy, wy * wy + wz2 * gy * gy)
         g0 = ux * ru + vx * rv + wx * rx + wz * gx * rz
         g1 = uy * ru + vy * rv + wy * ry + wz * gy * rz
         rr = ru * ru + rv * rv + rx * rx + ry * ry + rz * rz
-        return rr, C00, C01, C11, g0, g1
+        return rr, Cp, Cs, g0, g1
+
+    def _log_point_prior(self, extra, sig, Cp, Cs):
+        """log of the points' prior density at the current q, shape (..., N).
+
+        Flat prior: 0. Jeffreys prior: ``log |C_ref|^(1/2)`` with ``C_ref`` the
+        points' information at the reference noise levels.
+        """
+        if self.point_prior == "flat":
+            return 0.0
+        sp = (np.asarray(sig) / self.ref_sigma_px)[..., None] ** 2
+        if self.infer_scene:
+            kappa = np.exp(extra[..., -1])
+            ss = (kappa / self.ref_kappa)[..., None] ** 2
+        else:
+            ss = 1.0
+        c00, c01, c11 = (p * sp + q * ss for p, q in zip(Cp, Cs, strict=True))
+        return 0.5 * np.log(c00 * c11 - c01 * c01)
 
     def laplace(self, psi, q0, *, n_iter=4):
         """Integrate each point's scene coordinates out by a Gauss-Newton/Laplace step.
@@ -260,9 +306,11 @@ class LaserLikelihood:
         Returns
         -------
         log_marginal : ndarray, shape (...)
-            Sum over points of ``log int p(pixels_i, approx_i | theta, q_i) dq_i``
-            (Laplace approximation with the Gauss-Newton Hessian; exact for a
-            model linear in q); ``-inf`` outside the model's domain.
+            Sum over points of ``log int p(pixels_i, approx_i | theta, q_i)
+            pi(q_i | theta) dq_i`` (Laplace approximation with the Gauss-Newton
+            Hessian; exact for a model linear in q); ``-inf`` outside the
+            model's domain. With the Jeffreys point prior and given noise this
+            is the profile likelihood plus a constant.
         q : ndarray, shape (..., N, 2)
             Conditional modes.
         C : ndarray, shape (..., N, 2, 2)
@@ -274,7 +322,8 @@ class LaserLikelihood:
         x, y = q[..., 0].copy(), q[..., 1].copy()
         with np.errstate(invalid="ignore", divide="ignore"):
             for it in range(n_iter + 1):
-                rr, C00, C01, C11, g0, g1 = self._point_terms(theta, x, y, sig, w)
+                rr, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
+                C00, C01, C11 = (p + q for p, q in zip(Cp, Cs, strict=True))
                 det = C00 * C11 - C01 * C01
                 d0 = (C11 * g0 - C01 * g1) / det
                 d1 = (C00 * g1 - C01 * g0) / det
@@ -283,23 +332,29 @@ class LaserLikelihood:
                 x = x - d0
                 y = y - d1
             per_point = (-0.5 * rr + 0.5 * (g0 * d0 + g1 * d1) - 0.5 * np.log(det) + _LOG2PI
-                         + log_norm)
+                         + log_norm + self._log_point_prior(extra, sig, Cp, Cs))
         total = per_point.sum(axis=-1)
         C = np.stack([np.stack([C00, C01], -1), np.stack([C01, C11], -1)], -2)
         return np.where(np.isfinite(total), total, -np.inf), np.stack([x, y], -1), C
 
-    def log_joint(self, psi, q):
-        """Exact log likelihood of ``(psi, q)``, shape (...) (for the brute-force sampler)."""
+    def _exact_terms(self, psi, q):
         theta, extra = self.split(psi)
         sig, w, log_norm = self.noise(extra)
-        R = self.residuals(theta, q, sig, w)
-        total = np.sum(-0.5 * np.sum(R * R, axis=-1) + log_norm, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rr, Cp, Cs, _, _ = self._point_terms(theta, q[..., 0], q[..., 1], sig, w)
+            per_point = -0.5 * rr + self._log_point_prior(extra, sig, Cp, Cs)
+        return per_point, log_norm
+
+    def log_joint(self, psi, q):
+        """Exact log density of ``(psi, q)`` (likelihood times point prior), shape (...).
+
+        Used by the brute-force joint sampler that validates the collapsed one.
+        """
+        per_point, log_norm = self._exact_terms(psi, q)
+        total = np.sum(per_point + log_norm, axis=-1)
         return np.where(np.isfinite(total), total, -np.inf)
 
     def point_log_density(self, psi, q):
         """Per-point exact log density of ``q`` given ``psi`` (up to constants), (..., N)."""
-        theta, extra = self.split(psi)
-        sig, w, _ = self.noise(extra)
-        R = self.residuals(theta, q, sig, w)
-        out = -0.5 * np.sum(R * R, axis=-1)
+        out, _ = self._exact_terms(psi, q)
         return np.where(np.isfinite(out), out, -np.inf)

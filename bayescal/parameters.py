@@ -135,13 +135,13 @@ class SensorParams:
         unknown = set(changes) - set(PARAM_NAMES)
         if unknown:
             raise TypeError(f"unknown parameter name(s) {sorted(unknown)}; expected {PARAM_NAMES}")
-        d = dict(zip(PARAM_NAMES, astuple(self)))
+        d = dict(zip(PARAM_NAMES, astuple(self), strict=True))
         d.update(changes)
         return SensorParams(**d)
 
     def as_dict(self):
         """Return ``{name: value}`` for the eight parameters."""
-        return dict(zip(PARAM_NAMES, astuple(self)))
+        return dict(zip(PARAM_NAMES, astuple(self), strict=True))
 
 
 def as_param_array(params, name="params"):
