@@ -10,7 +10,8 @@ import numpy as np
 
 from ._validation import as_pixels, as_points
 
-__all__ = ["plot_image", "plot_room", "savefig"]
+__all__ = ["plot_image", "plot_room", "plot_corner", "plot_residuals", "plot_reconstruction",
+           "savefig"]
 
 
 def _axes(ax, projection=None, figsize=(6, 5)):
@@ -123,3 +124,135 @@ def savefig(fig, path, *, dpi=120):
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def plot_corner(posterior, *, identifiable=False, truth=None, params=None, **corner_kw):
+    """Corner plot of the posterior's parameters (with the ``corner`` package).
+
+    Parameters
+    ----------
+    posterior : Posterior
+    identifiable : bool, optional
+        Plot the 7 identifiable coordinates instead of the 8 paper parameters.
+    truth : SensorParams, optional
+        Drawn as lines (e.g. the simulation's true parameters).
+    params : sequence of str, optional
+        Subset of names to plot (default all).
+    **corner_kw
+        Passed to :func:`corner.corner`.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import corner
+
+    from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
+
+    names = IDENTIFIABLE_NAMES if identifiable else PARAM_NAMES
+    x = posterior.theta_samples if identifiable else posterior.param_samples
+    truths = None
+    if truth is not None:
+        truths = truth.to_identifiable() if identifiable else truth.to_array()
+    if params is not None:
+        unknown = [p for p in params if p not in names]
+        if unknown:
+            raise ValueError(f"params {unknown} not among {names}")
+        idx = [names.index(p) for p in params]
+        names = [names[i] for i in idx]
+        x = x[:, idx]
+        truths = None if truths is None else truths[idx]
+    kw = {"labels": list(names), "show_titles": True, "title_fmt": ".3g",
+          "quantiles": [0.05, 0.5, 0.95], "truths": truths, "truth_color": "tab:red"}
+    kw.update(corner_kw)
+    return corner.corner(x, **kw)
+
+
+def plot_residuals(pixels, predicted, *, scale=200.0, ax=None):
+    """Pixel residuals in the image as arrows (magnified by ``scale``).
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        Observed pixels.
+    predicted : array_like, shape (N, 2)
+        Model pixels (e.g. ``project(params, points)``).
+    scale : float, optional
+        Magnification of the residual arrows.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    pixels = as_pixels(pixels)
+    predicted = as_pixels(predicted, "predicted", allow_nan=True)
+    if pixels.shape != predicted.shape:
+        raise ValueError(f"pixels and predicted must have the same shape, got {pixels.shape} "
+                         f"and {predicted.shape}")
+    fig, ax = _axes(ax)
+    d = pixels - predicted
+    ax.quiver(predicted[:, 0], predicted[:, 1], d[:, 0] * scale, d[:, 1] * scale,
+              angles="xy", scale_units="xy", scale=1, width=0.002, color="tab:blue")
+    ax.scatter(predicted[:, 0], predicted[:, 1], s=2, c="k")
+    rms = float(np.sqrt(np.nanmean(np.sum(d**2, axis=1))))
+    ax.set_aspect("equal")
+    ax.invert_yaxis()
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(f"Pixel residuals x{scale:g} (RMS {rms:.3g} px)")
+    return fig
+
+
+def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0, every=1,
+                        ax=None):
+    """Top view of reconstructed points with their uncertainty ellipses.
+
+    Parameters
+    ----------
+    mean : array_like, shape (N, 3)
+        Reconstructed points, mm.
+    covariance : array_like, shape (N, 3, 3)
+        Their covariances, mm^2; the (x, y) block is drawn as an ellipse.
+    truth : array_like, shape (N, 3), optional
+        True points.
+    walls : ndarray, shape (W, 2, 2), optional
+    n_sigma : float, optional
+        Ellipse size in standard deviations (2 holds ~86 % in 2-D).
+    every : int, optional
+        Draw one ellipse in ``every`` points.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.patches import Ellipse
+
+    mean = as_points(mean, "mean", allow_nan=True)
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape != mean.shape + (3,):
+        raise ValueError(f"covariance must have shape {mean.shape + (3,)}, got "
+                         f"{covariance.shape}")
+    fig, ax = _axes(ax)
+    if walls is not None:
+        for seg in np.asarray(walls):
+            ax.plot(seg[:, 0], seg[:, 1], "k-", lw=1)
+    for i in range(0, len(mean), max(int(every), 1)):
+        c = covariance[i, :2, :2]
+        if not np.all(np.isfinite(c)):
+            continue
+        e, v = np.linalg.eigh(c)
+        angle = np.degrees(np.arctan2(v[1, 1], v[0, 1]))
+        w, h = 2 * n_sigma * np.sqrt(np.clip(e[::-1], 0, None))
+        ax.add_patch(Ellipse(mean[i, :2], w, h, angle=angle, fill=False, lw=0.6,
+                             color="tab:blue"))
+    if truth is not None:
+        truth = as_points(truth, "truth")
+        ax.scatter(truth[:, 0], truth[:, 1], s=3, c="tab:red", label="true points", zorder=3)
+    ax.scatter(mean[:, 0], mean[:, 1], s=3, c="tab:blue", label="reconstructed", zorder=2)
+    ax.plot(0, 0, "k^")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"Reconstruction, {n_sigma:g}-sigma ellipses")
+    ax.legend(loc="upper right", fontsize="small")
+    return fig
