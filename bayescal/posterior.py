@@ -318,6 +318,9 @@ class Posterior:
                                   sigma_px=None if "sigma_px" in self.noise_names
                                   else self.sigma_px,
                                   sigma_scene=sigma_scene)
+            ref = {n: float(np.exp(np.mean(self.noise_samples[:, k])))
+                   for k, n in enumerate(self.noise_names)}
+            lik.set_reference_noise(**ref)
             psi = np.concatenate([theta, self._noise_for(lik, idx)], axis=1)
             q0 = lik.initial_q(theta.mean(axis=0))
             q, _ = _draw_points(lik, psi, q0, rng, n_mh=2, n_iter=6)

@@ -194,9 +194,9 @@ def _draw_points(lik, psi, q_start, rng, *, n_mh, n_iter, batch=256):
 
 
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rng=None,
-                     n_walkers=32, min_ess=1000, tau_factor=50, max_steps=20000,
+                     n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
-                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=200):
+                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=150):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -219,7 +219,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     rng : numpy.random.Generator, int or None
         Randomness of walkers, emcee and point draws: same seed, same chains.
     n_walkers : int, optional
-        emcee walkers (at least ``2 * ndim`` for the red-blue moves).
+        emcee walkers, at least ``2 * ndim`` for the red-blue moves (default
+        ``2 * ndim + 2``: with the tuned independence proposal the chain length,
+        not the ensemble size, limits the run, so few walkers are cheapest).
     min_ess : float, optional
         Target effective sample size of every sampled coordinate.
     tau_factor : float, optional
@@ -268,7 +270,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
     ndim = 7 + lik.n_noise
-    n_walkers = int(n_walkers)
+    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
     if n_walkers < 2 * ndim:
         raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
                          f"red-blue moves, got {n_walkers}")
@@ -279,6 +281,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
                                      sigma_scene=sigma_scene, prior=prior, init=init)
     sol = map_res.extras["map"]
     noise = map_res.extras["noise"]
+    lik.set_reference_noise(sigma_px=noise["sigma_px"], kappa=noise["kappa"])
     psi_map = list(sol.theta)
     if lik.infer_px:
         psi_map.append(np.log(noise["sigma_px"]))

@@ -263,13 +263,13 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prio
     n = lik.n
     if n < 4:
         raise ValueError(f"need at least 4 laser points, got N={n}")
-    az = np.arctan2(lik.pixels[:, 1] - np.median(lik.pixels[:, 1]),
-                    lik.pixels[:, 0] - np.median(lik.pixels[:, 0]))
-    if np.ptp(np.unwrap(np.sort(az))) < 0.2 or np.allclose(az, az[0], atol=1e-3):
-        raise ValueError("all laser pixels lie at one azimuth: the cone and the principal "
-                         "point cannot be separated; spread the points around the ring")
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     init = _resolve_init(init, prior)
+    az = np.arctan2(lik.pixels[:, 1] - init.v0, lik.pixels[:, 0] - init.u0)
+    if np.abs(np.mean(np.exp(1j * az))) > 0.99:
+        raise ValueError("pixels: all laser pixels lie at (nearly) one azimuth around the "
+                         f"principal point ({init.u0:g}, {init.v0:g}); the cone and the principal "
+                         "point cannot be separated: use points spread around the laser ring")
     theta0 = to_identifiable(init.to_array())
     q0 = lik.initial_q(theta0)
     if not estimate_points:
@@ -284,14 +284,41 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prio
              else lik.w_scene)
         sol = solve_map(lik, prior, theta0, q0, sigma_px=sig, w_scene=w, max_iter=max_iter)
         theta0, q0 = sol.theta, sol.q
-        if lik.infer_px:
-            sig = float(np.sqrt(np.mean((sol.R[:, :2] * sig) ** 2) * 2 * n
-                                / max(2 * n - 7, 1)))
-        if lik.infer_scene:
-            kappa = float(np.sqrt(np.mean((sol.R[:, 2:] / w) ** 2 / lik.rho[:, None] ** 2)
-                                  * 3 * n / max(n, 1) / 2))
+        if lik.n_noise:
+            sig, kappa = _fit_noise(lik, sol, sig, kappa)
     return _make_result(lik, prior, sol, sig, w, absolute_sigma, raise_on_failure,
                         noise={"sigma_px": sig, "kappa": kappa if lik.infer_scene else None})
+
+
+def _fit_noise(lik, sol, sig, kappa):
+    """Maximise the collapsed likelihood (points integrated out) over the inferred noise.
+
+    The joint maximum over points and noise degenerates (each point can absorb its two
+    pixel rows, driving sigma_px to 0); integrating the points out keeps their degrees
+    of freedom (the REML-like behaviour of the flat noise prior).
+    """
+    from scipy.optimize import minimize
+
+    lik.set_reference_noise(sigma_px=sig, kappa=kappa)
+    x0 = []
+    if lik.infer_px:
+        x0.append(np.log(sig))
+    if lik.infer_scene:
+        x0.append(np.log(kappa))
+
+    def f(e):
+        v = lik.laplace(np.concatenate([sol.theta, e]), sol.q, n_iter=3)[0]
+        return -v if np.isfinite(v) else 1e300
+
+    e = minimize(f, np.array(x0), method="Nelder-Mead",
+                 options={"xatol": 1e-4, "fatol": 1e-6}).x
+    k = 0
+    if lik.infer_px:
+        sig = float(np.exp(e[k]))
+        k += 1
+    if lik.infer_scene:
+        kappa = float(np.exp(e[k]))
+    return sig, kappa
 
 
 def _make_result(lik, prior, sol, sig, w, absolute_sigma, raise_on_failure, noise):
