@@ -72,8 +72,56 @@ def default_moves(mean=None, cov=None):
     return [(IndependenceMove(mean, cov), 0.7), (emcee.moves.DEMove(), 0.3)]
 
 
+def ring_scale(theta):
+    """``sin(beta) / (xi - cos(beta))``: the laser ring's asymptotic radius per unit gamma.
+
+    A laser point far away images at ``gamma * sin(beta) / (xi - cos(beta))`` px from
+    the principal point; at large range the data pin this radius, not gamma, xi and
+    beta one by one, so the sampler works with ``R_u = gamma_u * ring_scale`` and
+    ``R_v = gamma_v * ring_scale`` in place of ``gamma_u``, ``gamma_v``.
+    """
+    xi, beta = theta[..., 0], theta[..., 6]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(xi - np.cos(beta) > 0, np.sin(beta) / (xi - np.cos(beta)), np.nan)
+
+
+def to_sampling(psi):
+    """Sampling coordinates: psi with (gamma_u, gamma_v) replaced by the ring radii."""
+    s = np.array(psi, dtype=float)
+    k = ring_scale(s)
+    s[..., 1] *= k
+    s[..., 2] *= k
+    return s
+
+
+def from_sampling(s):
+    """Inverse of :func:`to_sampling`."""
+    psi = np.array(s, dtype=float)
+    k = ring_scale(psi)
+    psi[..., 1] /= k
+    psi[..., 2] /= k
+    return psi
+
+
+def _sampling_jacobian(psi, eps=1e-7):
+    """d to_sampling / d psi by central differences, (ndim, ndim)."""
+    psi = np.asarray(psi, float)
+    d = len(psi)
+    J = np.empty((d, d))
+    for k in range(d):
+        h = eps * max(1.0, abs(psi[k]))
+        e = np.zeros(d)
+        e[k] = h
+        J[:, k] = (to_sampling(psi + e) - to_sampling(psi - e)) / (2 * h)
+    return J
+
+
 class _CollapsedTarget:
-    """Vectorized log posterior of psi with the points integrated out."""
+    """Vectorized log posterior with the points integrated out, in sampling coordinates.
+
+    Called with sampling coordinates (:func:`to_sampling`); the density includes the
+    Jacobian ``|d psi / d s| = ring_scale^-2`` of the change of variables.
+    """
 
     def __init__(self, lik, prior, q_start, n_iter):
         self.lik, self.prior, self.q_start, self.n_iter = lik, prior, q_start, n_iter
@@ -90,15 +138,77 @@ class _CollapsedTarget:
             lp = np.where((x > lo) & (x < hi), lp, -np.inf)
         return lp
 
-    def __call__(self, psi):
-        psi = np.atleast_2d(psi)
-        lp = self.log_prior(psi)
+    def __call__(self, s):
+        s = np.atleast_2d(s)
+        psi = from_sampling(s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lp = self.log_prior(psi) - 2.0 * np.log(ring_scale(psi))
         out = np.full(len(psi), -np.inf)
         ok = np.isfinite(lp)
         if np.any(ok):
             ll, _, _ = self.lik.laplace(psi[ok], self.q_start, n_iter=self.n_iter)
             out[ok] = lp[ok] + ll
         return np.where(np.isfinite(out), out, -np.inf)
+
+
+def refine_laplace(logp, center, cov, *, n_newton=3, step=0.05):
+    """Newton steps on the collapsed log target with a finite-difference Hessian.
+
+    The MAP's Laplace covariance comes from the Gauss-Newton Hessian of the joint
+    problem; where the posterior is strongly curved (large rooms with no z information
+    in the approximate points) it can be several times too wide along the ridge, which
+    starves an independence proposal. This measures the collapsed target itself: in
+    the coordinates ``z`` whitened by ``cov``, central differences (step ``step``)
+    give the gradient and Hessian, vectorised in one batch per Newton step.
+
+    Returns
+    -------
+    mode : ndarray, shape (ndim,)
+    cov : ndarray, shape (ndim, ndim)
+        Inverse of the negative Hessian at the mode; the input ``cov`` where the
+        Hessian is not negative definite.
+    """
+    center = np.asarray(center, float)
+    d = len(center)
+    e, V = np.linalg.eigh(cov)
+    L = V * np.sqrt(np.clip(e, 1e-300, None))
+    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
+    z0 = np.zeros(d)
+    H = None
+    for _ in range(n_newton):
+        pts = [z0]
+        for i in range(d):
+            for sgn in (1, -1):
+                z = z0.copy()
+                z[i] += sgn * step
+                pts.append(z)
+        for i, j in pairs:
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                z = z0.copy()
+                z[i] += si * step
+                z[j] += sj * step
+                pts.append(z)
+        f = logp(center + np.array(pts) @ L.T)
+        if not np.all(np.isfinite(f)):
+            break
+        f0, fi, fij = f[0], f[1:1 + 2 * d].reshape(d, 2), f[1 + 2 * d:].reshape(-1, 4)
+        g = (fi[:, 0] - fi[:, 1]) / (2 * step)
+        H = np.diag((fi[:, 0] - 2 * f0 + fi[:, 1]) / step**2)
+        for k, (i, j) in enumerate(pairs):
+            H[i, j] = H[j, i] = (fij[k, 0] - fij[k, 1] - fij[k, 2] + fij[k, 3]) / (4 * step**2)
+        w, U = np.linalg.eigh(-H)
+        if np.any(w <= 0):
+            H = None
+            break
+        dz = U @ ((U.T @ g) / w)
+        dz *= min(1.0, 1.0 / max(np.max(np.abs(dz)), 1e-12))      # at most 1 sd per step
+        z0 = z0 + dz
+        if np.max(np.abs(dz)) < 1e-3:
+            break
+    if H is None:
+        return center, cov
+    cov_new = L @ np.linalg.inv(-H) @ L.T
+    return center + L @ z0, 0.5 * (cov_new + cov_new.T)
 
 
 def _seeded_sampler(nwalkers, ndim, fn, rng, moves):
@@ -144,9 +254,11 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                 pbar.update(n)
             chain = sampler.get_chain()
             tau = _tau(chain[total // 5:])          # drop the first fifth as a provisional burn
-            burn = int(np.ceil(burn_factor * np.max(tau)))
+            # a coordinate with no movement in the window has an undefined tau: not converged
+            tau = np.where(np.isfinite(tau), tau, np.inf)
+            burn = int(min(np.ceil(burn_factor * np.max(tau)), total // 2))
             kept = total - burn
-            ess = sampler.nwalkers * kept / tau if kept > 0 else np.zeros_like(tau)
+            ess = sampler.nwalkers * kept / tau
             converged = kept > tau_factor * np.max(tau)
             info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(converged),
                     "ess": ess}
@@ -156,7 +268,8 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                 break
             # grow the next chunk to what the current tau says is still needed
             need_len = max(tau_factor * np.max(tau), min_ess * np.max(tau) / sampler.nwalkers)
-            chunk = int(np.clip(need_len + burn - total, 50, max(chunk, 50) * 4))
+            need = need_len + burn - total if np.isfinite(need_len) else chunk
+            chunk = int(np.clip(need, 50, max(chunk, 50) * 4))
     finally:
         if pbar is not None:
             pbar.close()
@@ -293,6 +406,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     for k in range(7, ndim):
         cov0[k, k] = (1.0 / np.sqrt(lik.n)) ** 2          # ~ relative sd of a noise estimate
     target = _CollapsedTarget(lik, prior, sol.q, n_iter)
+    J = _sampling_jacobian(psi_map)
+    psi_map, cov0 = to_sampling(psi_map), J @ cov0 @ J.T     # sampling coordinates from here
     p0 = rng.multivariate_normal(psi_map, cov0, size=n_walkers)
     lp0 = target(p0)
     for _ in range(100):
@@ -307,14 +422,19 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     # tuning: emcee with a Laplace-based independence proposal and DE; its second half
     # gives the mean and covariance of the frozen proposal of the production run
     n_tune = int(n_tune)
-    tune = _seeded_sampler(n_walkers, ndim, target, rng,
-                           default_moves(psi_map, 1.5 * cov0) if moves is None else moves)
-    state = tune.run_mcmc(p0, n_tune, progress=False) if n_tune > 0 else p0
-    if n_tune > 0 and moves is None:
-        ch = tune.get_chain(discard=n_tune // 2).reshape(-1, ndim)
-        prod_moves = default_moves(ch.mean(axis=0), np.cov(ch, rowvar=False))
-    else:
-        prod_moves = default_moves(psi_map, cov0) if moves is None else moves
+    state, mean, cov = p0, psi_map, cov0
+    prod_moves = moves
+    for scale in (1.5, 1.0):              # two tuning rounds, each refits the proposal
+        if n_tune <= 0:
+            break
+        tune = _seeded_sampler(n_walkers, ndim, target, rng,
+                               default_moves(mean, scale * cov) if moves is None else moves)
+        state = tune.run_mcmc(state, n_tune, progress=False)
+        if moves is None:
+            ch = tune.get_chain(discard=n_tune // 3).reshape(-1, ndim)
+            mean, cov = ch.mean(axis=0), np.cov(ch, rowvar=False)
+    if moves is None:
+        prod_moves = default_moves(mean, cov)
     sampler = _seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, state, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=200, progress=progress)
@@ -323,7 +443,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     if len(flat) == 0:
         flat = chain[-1]
     idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
-    psi = flat[idx]
+    psi = from_sampling(flat[idx])
     phi = prior.sample_phi(psi[:, :7], rng=rng)
     a = from_identifiable(psi[:, :7], phi)
     q, imh_acc = _draw_points(lik, psi, sol.q, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
