@@ -185,7 +185,9 @@ class Posterior:
             Keys ``name, mean, sd, q05, q50, q95, tau, ess, prior_sd, sd_ratio,
             prior_dominated, identifiable``. ``sd_ratio`` is posterior sd / prior
             sd; ``prior_dominated`` when it exceeds :data:`PRIOR_DOMINATED_RATIO`
-            (the data did not even halve the prior's spread).
+            (the data did not even halve the prior's spread), and always for
+            ``phi``, ``alpha_u``, ``alpha_v``: the data do not see them one by one,
+            so whatever their posterior is, the priors decided it.
         """
         x = self.param_samples
         q = np.quantile(x, [0.05, 0.5, 0.95], axis=0)
@@ -199,7 +201,8 @@ class Posterior:
                          "q05": float(q[0, k]), "q50": float(q[1, k]), "q95": float(q[2, k]),
                          "tau": tau[name], "ess": ess[name], "prior_sd": float(psd[k]),
                          "sd_ratio": float(ratio),
-                         "prior_dominated": bool(ratio > PRIOR_DOMINATED_RATIO),
+                         "prior_dominated": bool(ratio > PRIOR_DOMINATED_RATIO
+                                                 or name in NON_IDENTIFIABLE),
                          "identifiable": name not in NON_IDENTIFIABLE})
         return rows
 
