@@ -270,7 +270,7 @@ def scene_sigma(dataset):
 def bayes_settings(mode):
     """Sampler targets per mode (keyword arguments of ``bc.sample_posterior``)."""
     return {
-        "full": {"min_ess": 400, "n_samples": 500, "max_steps": 3000, "n_tune": 200},
+        "full": {"min_ess": 400, "n_samples": 500, "max_steps": 8000, "n_tune": 150},
         "quick": {"min_ess": 150, "n_samples": 200, "max_steps": 600, "n_tune": 100},
         "smoke": {"min_ess": 40, "n_samples": 40, "max_steps": 120, "n_tune": 30,
                   "n_walkers": 16},
