@@ -431,14 +431,6 @@ def _run_bayes(inp, opts, args):
     return post
 
 
-def _missing(name):
-    import bayescal as bc
-
-    if not hasattr(bc, name):
-        raise Failure(f"bayescal.{name} is not available in this version of bayescal "
-                      "(that stage is still being written)")
-
-
 def run_calibration(args, inp, folder, *, title=None):
     """Calibrate with ``args.method`` and write summary, points, posterior and the report.
 
@@ -458,12 +450,9 @@ def run_calibration(args, inp, folder, *, title=None):
     opts = {"sigma_px": spx, "sigma_px_how": spx_how, "sigma_scene": ssc}
     posterior = None
     failed = None
-    try:
-        from .results import ConvergenceError
-    except ImportError:
-        ConvergenceError = ()  # noqa: N806
+    from .results import ConvergenceError
+
     if args.method == "bayes":
-        _missing("sample_posterior")
         posterior = _run_bayes(inp, opts, args)
         folder.add(posterior.save(out / "posterior.npz", overwrite=True))
         summary = posterior_summary(posterior)
@@ -473,7 +462,6 @@ def run_calibration(args, inp, folder, *, title=None):
                       "autocorrelation times); outputs written for diagnosis. Run longer "
                       "(--max-steps) or pass --allow-unconverged")
     else:
-        _missing(f"calibrate_{args.method}")
         try:
             result, summary, (points, recon) = _run_least_squares(args.method, inp, opts)
         except ConvergenceError as exc:
@@ -531,7 +519,6 @@ def cmd_calibrate(args):
                     raise UsageError(f"{', '.join(map(str, data.paths))}: {exc}") from None
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"--max-steps must be a positive integer, got {args.max_steps}")
-    _missing("sample_posterior" if args.method == "bayes" else f"calibrate_{args.method}")
     folder = OutputFolder(args.out)
     return run_calibration(args, inp, folder)
 
@@ -551,7 +538,6 @@ def _load_run(run):
 def _load_posterior(run):
     import bayescal as bc
 
-    _missing("load_posterior")
     path = run / "posterior.npz"
     if not path.is_file():
         raise UsageError(f"{run}: summary.json says method 'bayes' but {path} is missing")

@@ -160,6 +160,14 @@ class Posterior:
         x = self.theta_samples if identifiable else self.param_samples
         return np.cov(x, rowvar=False)
 
+    def laplace_covariance(self, identifiable=False):
+        """Laplace covariance at the MAP: (8, 8) paper parameters or (7, 7) identifiable.
+
+        The least-squares approximation beside :meth:`covariance`; see
+        :meth:`laplace_comparison` for where the two disagree.
+        """
+        return (self.laplace_cov7 if identifiable else self.laplace_cov8).copy()
+
     def intervals(self, level=0.9, identifiable=False):
         """Equal-tailed credible intervals, shape (8, 2) (or (7, 2))."""
         x = self.theta_samples if identifiable else self.param_samples

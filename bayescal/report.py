@@ -23,6 +23,7 @@ import numpy as np
 from .camera import project
 from .laser import triangulate_theta
 from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .posterior import PRIOR_DOMINATED_RATIO
 
 __all__ = [
     "result_summary",
@@ -71,7 +72,7 @@ def result_summary(result, *, prior=None):
     values = result.params.to_array()
     sd = result.std
     flagged = _non_identifiable(result.identifiability)
-    ratio_limit = _ratio_limit()
+    ratio_limit = PRIOR_DOMINATED_RATIO
     rows = []
     for name, v, s in zip(PARAM_NAMES, values, sd, strict=True):
         row = {"name": name, "mean": v, "sd": s, "q05": v - _Z90 * s, "q95": v + _Z90 * s,
@@ -100,14 +101,6 @@ def result_summary(result, *, prior=None):
     }
 
 
-def _ratio_limit():
-    try:
-        from .posterior import PRIOR_DOMINATED_RATIO
-    except ImportError:           # the posterior module is optional here
-        return 0.5
-    return PRIOR_DOMINATED_RATIO
-
-
 def posterior_summary(posterior):
     """JSON-ready summary of a :class:`~bayescal.Posterior`.
 
@@ -129,14 +122,12 @@ def posterior_summary(posterior):
         "sd": dict(zip(PARAM_NAMES, np.sqrt(np.diag(cov)), strict=True)),
         "covariance": cov,
         "covariance_identifiable": posterior.covariance(identifiable=True),
-        "laplace_covariance": getattr(posterior, "laplace_covariance",
-                                      getattr(posterior, "laplace_cov8", None)),
+        "laplace_covariance": posterior.laplace_covariance(),
         "tau": np.asarray(posterior.tau),
         "n_samples": int(np.shape(posterior.param_samples)[0]),
         "text": posterior.summary_text(),
         "rows": rows,
-        "laplace_comparison": (posterior.laplace_comparison()
-                               if hasattr(posterior, "laplace_comparison") else None),
+        "laplace_comparison": posterior.laplace_comparison(),
     }
 
 
@@ -364,7 +355,8 @@ def _lines_intro(summary):
 def _note():
     return ("*Prior-dominated*: the data do not determine the parameter, its prior does (or "
             "it was held fixed). Either its sd exceeds "
-            f"{_ratio_limit():g} x its prior sd (column sd_ratio, when a prior was used), or "
+            f"{PRIOR_DOMINATED_RATIO:g} x its prior sd (column sd_ratio, when a prior was used), "
+            "or "
             "it lies on the exact phi/alpha ridge: phi, alpha_u and alpha_v enter the model "
             "only through gamma_u = alpha_u (xi + phi) and gamma_v = alpha_v (xi + phi). The "
             "seven identifiable combinations are " + ", ".join(IDENTIFIABLE_NAMES) + ".")
