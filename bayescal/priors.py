@@ -116,10 +116,22 @@ class Prior:
             for k, v in prior.items():
                 dists[k] = _check_dist(k, v)
         self.dists = dists
+        # normal priors are evaluated in closed form (scipy's per-call overhead dominated
+        # the sampler's prior cost)
+        self._normal = {n: (float(d.mean()), float(d.std())) for n, d in dists.items()
+                        if getattr(getattr(d, "dist", None), "name", "") == "norm"}
         # quadrature over phi: equal-probability nodes (midpoint rule in quantile space)
         u = (np.arange(n_phi) + 0.5) / n_phi
         self._phi_nodes = np.asarray(dists["phi"].ppf(u), dtype=float)
         self._log_w = np.full(n_phi, -np.log(n_phi))
+
+    def _logpdf(self, name, x):
+        """Log density of parameter ``name`` at ``x`` (closed form for normals)."""
+        if name in self._normal:
+            mu, sd = self._normal[name]
+            z = (x - mu) / sd
+            return -0.5 * z * z - np.log(sd) - 0.5 * np.log(2 * np.pi)
+        return self.dists[name].logpdf(x)
 
     # -- paper parameters -------------------------------------------------
     def logpdf(self, a):
@@ -127,7 +139,7 @@ class Prior:
         a = np.asarray(a, dtype=float)
         out = np.zeros(a.shape[:-1])
         for k, name in enumerate(PARAM_NAMES):
-            out = out + self.dists[name].logpdf(a[..., k])
+            out = out + self._logpdf(name, a[..., k])
         return out
 
     def mean(self):
@@ -161,15 +173,13 @@ class Prior:
         return out.reshape(shape + (8,))
 
     # -- identifiable coordinates ------------------------------------------
-    def _joint_terms(self, theta, phi):
-        """log p(theta, phi) up to the parts not depending on phi; phi (..., K)."""
+    def _alpha_terms(self, theta, phi):
+        """``log p_au(gu/s) + log p_av(gv/s) - 2 log s`` at nodes ``phi``, shape (..., K)."""
         xi = theta[..., 0:1]
         s = xi + phi
         with np.errstate(divide="ignore", invalid="ignore"):
-            lp = (self.dists["phi"].logpdf(phi)
-                  + self.dists["alpha_u"].logpdf(theta[..., 1:2] / s)
-                  + self.dists["alpha_v"].logpdf(theta[..., 2:3] / s)
-                  - 2.0 * np.log(s))
+            lp = (self._logpdf("alpha_u", theta[..., 1:2] / s)
+                  + self._logpdf("alpha_v", theta[..., 2:3] / s) - 2.0 * np.log(s))
         return np.where(s > 0, lp, -np.inf)
 
     def logpdf_theta(self, theta):
@@ -184,13 +194,11 @@ class Prior:
         ndarray, shape (...)
         """
         theta = np.asarray(theta, dtype=float)
-        out = (self.dists["xi"].logpdf(theta[..., 0]) + self.dists["u0"].logpdf(theta[..., 3])
-               + self.dists["v0"].logpdf(theta[..., 4]) + self.dists["h"].logpdf(theta[..., 5])
-               + self.dists["beta"].logpdf(theta[..., 6]))
-        phi = self._phi_nodes
-        # integrand / p_phi(phi) weighted by quantile nodes: E_phi[p_au p_av / s^2]
-        lp = self._joint_terms(theta, phi) - self.dists["phi"].logpdf(phi)
-        out = out + logsumexp(lp + self._log_w, axis=-1)
+        out = (self._logpdf("xi", theta[..., 0]) + self._logpdf("u0", theta[..., 3])
+               + self._logpdf("v0", theta[..., 4]) + self._logpdf("h", theta[..., 5])
+               + self._logpdf("beta", theta[..., 6]))
+        # E_phi[p_au p_av / s^2] over equal-probability nodes of p_phi
+        out = out + logsumexp(self._alpha_terms(theta, self._phi_nodes) + self._log_w, axis=-1)
         ok = (theta[..., 5] > 0) & (theta[..., 6] > 0) & (theta[..., 6] < np.pi / 2)
         return np.where(ok & np.isfinite(out), out, -np.inf)
 
@@ -204,7 +212,7 @@ class Prior:
         rng = resolve_rng(rng)
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
         phi = self._phi_nodes
-        lp = self._joint_terms(theta, phi) - self.dists["phi"].logpdf(phi)
+        lp = self._alpha_terms(theta, phi)
         lp = lp - lp.max(axis=-1, keepdims=True)
         w = np.exp(lp)
         w /= w.sum(axis=-1, keepdims=True)
