@@ -298,14 +298,11 @@ def sbc_simulation(seed, *, n_points=40, room=None, sampler=None):
     points, pixels = fixed_scene(truth, range_mm=room["range_mm"], n_points=n_points)
     pix, approx, s_scene = noisy_data(points, pixels, sigma_px=room["sigma_px"],
                                       approx_error=room["approx_error"], rng=rng)
-    if prior_centre not in ("drawn", "truth"):
-        raise ValueError(f"prior_centre must be 'drawn' or 'truth', got {prior_centre!r}")
-    prior = drawn_prior(truth, rng) if prior_centre == "drawn" else None
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", bc.NotConvergedWarning)
         post = bc.sample_posterior(pix, approx, sigma_px=room["sigma_px"], sigma_scene=s_scene,
-                                   prior=prior, rng=rng, progress=False, **sampler)
+                                   rng=rng, progress=False, **sampler)
     draws = np.column_stack([post.theta_samples, post.param_samples[:, 1]])
     true8 = np.append(to_identifiable(truth_a), truth_a[1])
     return {"ranks": (draws < true8).sum(axis=0), "converged": bool(post.converged),
