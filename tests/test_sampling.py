@@ -1,0 +1,164 @@
+"""The collapsed posterior sampler: a known answer, seeding, convergence handling, options.
+
+Kept small (60-150 points, min_ess 200, a few hundred samples): each run takes a few
+seconds. The statistical validation against brute force and coverage are slow studies.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+
+
+def _room(n_points, seed=3, **kw):
+    kw.setdefault("sigma_px", 0.3)
+    kw.setdefault("approx_error", 0.02)
+    return bc.simulate_room(range_mm=1000, n_points=n_points, approx_model="gaussian",
+                            rng=seed, **kw)
+
+
+def _sample(ds, **kw):
+    kw.setdefault("sigma_px", 0.3)
+    kw.setdefault("sigma_scene", ds.sigma_scene)
+    kw.setdefault("progress", False)
+    kw.setdefault("min_ess", 200)
+    kw.setdefault("n_samples", 300)
+    return bc.sample_posterior(ds.pixels, ds.approx_points, **kw)
+
+
+def test_posterior_matches_laplace_on_a_well_determined_problem():
+    """Small room, 150 points, 0.3 px, 2 % approximate points: the posterior of theta is
+    close to Gaussian, so the MCMC mean and sd must match the MAP and the Laplace covariance
+    up to Monte-Carlo error. With S_eff = min(ESS, samples kept) (the kept samples are
+    thinned evenly over the chain, nearly independent), the standard error of the mean is
+    sd / sqrt(S_eff) and that of an sd is sd / sqrt(2 S_eff); bounds of 4 standard errors on
+    the 14 statistics: FFR ~1e-3, assuming the Laplace approximation exact (measured
+    differences 0.94-1.04 in sd, < 0.06 sd in mean, i.e. within Monte-Carlo error)."""
+    ds = _room(150)
+    post = _sample(ds, n_samples=400, rng=1)
+    assert post.converged
+    theta = post.theta_samples
+    lap_sd = np.sqrt(np.diag(post.laplace_cov7))
+    s_eff = min(np.min(post.ess), post.n_samples)
+    shift = (theta.mean(axis=0) - post.map_result.extras["theta"]) / lap_sd
+    assert np.all(np.abs(shift) < 4 / np.sqrt(s_eff)), shift
+    ratio = theta.std(axis=0, ddof=1) / lap_sd
+    assert np.all(np.abs(ratio - 1) < 4 / np.sqrt(2 * s_eff)), ratio
+    # and the truth is within 3.9 posterior sd of the mean (two-sided 1e-4 each, Gaussian)
+    z = (theta.mean(axis=0) - ds.params.to_identifiable()) / theta.std(axis=0, ddof=1)
+    assert np.all(np.abs(z) < 3.9), z
+
+
+def test_output_shapes_and_convergence_rule():
+    ds = _room(60)
+    post = _sample(ds, rng=2)
+    assert post.param_samples.shape == (300, 8)
+    assert post.theta_samples.shape == (300, 7)
+    assert post.point_samples.shape == (300, 60, 3)
+    assert post.noise_samples.shape == (300, 0)
+    assert post.tau.shape == post.ess.shape == (7,)
+    # the rule the sampler claims: kept chain longer than 50 tau, ESS >= min_ess
+    assert post.converged
+    assert post.n_steps - post.burn > 50 * np.max(post.tau)
+    assert np.min(post.ess) >= 200
+    # every point sample lies on its sample's cone
+    a = post.param_samples
+    rho = np.hypot(post.point_samples[..., 0], post.point_samples[..., 1])
+    z = rho / np.tan(a[:, None, 7]) - a[:, None, 6]
+    np.testing.assert_allclose(post.point_samples[..., 2], z, rtol=1e-10, atol=1e-9)
+
+
+def test_same_seed_same_samples_different_seed_different():
+    ds = _room(60)
+    # short chains (convergence is not the point here)
+    kw = {"max_steps": 100, "n_samples": 50, "n_tune": 30}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.NotConvergedWarning)
+        a = _sample(ds, rng=7, **kw)
+        b = _sample(ds, rng=np.random.default_rng(7), **kw)
+        c = _sample(ds, rng=8, **kw)
+    np.testing.assert_array_equal(a.param_samples, b.param_samples)
+    np.testing.assert_array_equal(a.point_samples, b.point_samples)
+    assert not np.array_equal(a.param_samples, c.param_samples)
+    assert not np.array_equal(a.point_samples, c.point_samples)
+
+
+def test_too_few_walkers_and_bad_options_raise():
+    ds = _room(60)
+    with pytest.raises(ValueError, match=r"n_walkers must be at least 2 \* ndim = 14.*got 10"):
+        _sample(ds, n_walkers=10)
+    with pytest.raises(ValueError, match=r"at least 2 \* ndim = 18"):       # 7 + 2 noise
+        _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=17)
+    with pytest.raises(ValueError, match="on_unconverged must be 'warn' or 'raise'"):
+        _sample(ds, on_unconverged="ignore")
+    with pytest.raises(ValueError, match="n_samples must be a positive integer"):
+        _sample(ds, n_samples=0)
+
+
+def test_unconverged_chain_raises_with_tau():
+    ds = _room(60)
+    with pytest.raises(bc.NotConvergedError, match="did not converge within max_steps=30") as e:
+        _sample(ds, max_steps=30, n_tune=20, on_unconverged="raise", rng=0)
+    assert e.value.tau is not None and np.shape(e.value.tau) == (7,)
+    assert isinstance(e.value.posterior, bc.Posterior) and not e.value.posterior.converged
+
+
+def test_unconverged_chain_warns_and_progress_bar_runs(capsys):
+    ds = _room(60)
+    with pytest.warns(bc.NotConvergedWarning, match="fewer than 50 x tau"):
+        post = _sample(ds, max_steps=30, n_tune=20, rng=0, progress=True)
+    assert not post.converged
+    assert "NOT CONVERGED" in post.summary_text()
+    capsys.readouterr()                          # the bar wrote to stderr without crashing
+
+
+def _matched_data(n_points, seed=4):
+    """Data from the inferred-noise model: 0.3 px pixel noise, scene sd 0.02 rho per axis."""
+    ds = bc.simulate_room(range_mm=1000, n_points=n_points, sigma_px=0.0, approx_error=0.0,
+                          approx_model="gaussian", rng=3)
+    rng = np.random.default_rng(seed)
+    rho = np.hypot(ds.points[:, 0], ds.points[:, 1])
+    pixels = ds.pixels + 0.3 * rng.standard_normal(ds.pixels.shape)
+    approx = ds.points + 0.02 * rho[:, None] * rng.standard_normal(ds.points.shape)
+    return pixels, approx, rho
+
+
+def _check_noise(post, names, truths):
+    """The truth lies within 3.3 posterior sd of each level's posterior mean (a calibrated,
+    near-Gaussian posterior misses with probability 1e-3 per level)."""
+    assert post.converged
+    assert post.noise_names == names
+    assert post.noise_samples.shape == (post.n_samples, len(names))
+    assert post.tau.shape == (7 + len(names),)
+    for k, truth in enumerate(truths):
+        v = np.exp(post.noise_samples[:, k])
+        assert abs(v.mean() - truth) < 3.3 * v.std(ddof=1), (names[k], v.mean(), truth)
+    assert "(inferred)" in post.summary_text()
+
+
+@pytest.mark.parametrize("which", ["sigma_px", "kappa"])
+def test_inferred_noise_level(which):
+    """One noise level inferred, the other given (100 points)."""
+    pixels, approx, rho = _matched_data(100)
+    kw = {"sigma_px": None, "sigma_scene": 0.02 * rho[:, None]} if which == "sigma_px" \
+        else {"sigma_px": 0.3, "sigma_scene": None}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", bc.NotConvergedWarning)
+        post = bc.sample_posterior(pixels, approx, rng=5, progress=False, min_ess=200,
+                                   n_samples=400, **kw)
+    _check_noise(post, (which,), (0.3 if which == "sigma_px" else 0.02,))
+
+
+@pytest.mark.slow
+def test_both_noise_levels_inferred():
+    """Both levels inferred, 580 points. (With 100 points the collapsed likelihood is nearly
+    flat as sigma_px -> 0, only ~3.6 nats below its peak at the 1e-3 px bound: the points
+    absorb their pixel rows, the posterior has a long tail to the bound and the chain does
+    not converge in 20 000 steps; reported, not asserted here.)"""
+    pixels, approx, _ = _matched_data(580)
+    post = bc.sample_posterior(pixels, approx, sigma_px=None, sigma_scene=None, rng=5,
+                               progress=False, min_ess=400, n_samples=400,
+                               on_unconverged="raise")
+    _check_noise(post, ("sigma_px", "kappa"), (0.3, 0.02))
