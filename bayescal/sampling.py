@@ -36,6 +36,7 @@ from .parameters import from_identifiable
 from .priors import Prior
 
 __all__ = ["sample_posterior", "sample_joint", "NotConvergedWarning", "NotConvergedError",
+           "NoiseAtBoundWarning",
            "default_moves", "NOISE_BOUNDS"]
 
 #: log-uniform prior bounds of the inferred noise levels
@@ -44,6 +45,10 @@ NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
 
 class NotConvergedWarning(UserWarning):
     """The chain is shorter than 50 autocorrelation times (results may be biased)."""
+
+
+class NoiseAtBoundWarning(UserWarning):
+    """An inferred noise level's posterior piles up at its prior's lower bound."""
 
 
 class NotConvergedError(RuntimeError):
@@ -459,6 +464,13 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
         n_steps=info["n_steps"], burn=info["burn"], n_walkers=n_walkers,
         converged=info["converged"],
         acceptance=float(np.mean(sampler.acceptance_fraction)), imh_acceptance=imh_acc)
+    for k, name in enumerate(post.noise_names):
+        lo = NOISE_BOUNDS[name][0]
+        if np.quantile(np.exp(post.noise_samples[:, k]), 0.05) < 2 * lo:
+            warnings.warn(f"the posterior of the inferred {name} reaches its prior's lower "
+                          f"bound {lo:g}: the data cannot separate the noise levels (too few "
+                          f"points?); give {name if name == 'sigma_px' else 'sigma_scene'} "
+                          f"explicitly", NoiseAtBoundWarning, stacklevel=2)
     if not info["converged"]:
         msg = (f"the chain did not converge within max_steps={max_steps}: it has "
                f"{info['n_steps'] - info['burn']} steps after burn-in, fewer than "

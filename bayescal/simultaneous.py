@@ -326,14 +326,17 @@ def _make_result(lik, prior, sol, sig, w, absolute_sigma, raise_on_failure, nois
 
     n = lik.n
     R = sol.R
-    n_res = 2 * n + int(np.count_nonzero(w)) + 8
+    # degrees of freedom of the data rows only: the 8 prior rows carry no noise and
+    # phi is fixed by them alone, so neither enters the noise estimate
+    n_res = 2 * n + int(np.count_nonzero(w))
     n_unk = 7 + 2 * n
-    chi2 = 2 * sol.cost
+    chi2 = float(np.sum(R * R))
     red = chi2 / max(n_res - n_unk, 1)
     scale = 1.0 if absolute_sigma else red
     cov7 = sol.cov_theta * scale
     J = identifiable_jacobian(sol.theta, sol.phi)
     cov8 = J @ (sol.cov_theta_phi * scale) @ J.T
+    cov8 = 0.5 * (cov8 + cov8.T)
     params = SensorParams.from_array(from_identifiable(sol.theta, sol.phi))
     points = cone_point_theta(sol.theta, sol.q)
     pix_rms = float(np.sqrt(np.mean((R[:, :2] * sig) ** 2)))
@@ -393,8 +396,9 @@ def _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):
     t0 = to_identifiable(init.to_array())
     opt = least_squares(fun, t0, x_scale="jac", method="lm", xtol=1e-12, ftol=1e-12)
     J = opt.jac
-    n_res, n_unk = len(opt.fun), 7
-    red = 2 * opt.cost / max(n_res - n_unk, 1)
+    data_rows = opt.fun[:-8]                          # the last 8 rows are the priors
+    n_res, n_unk = len(data_rows), 7
+    red = float(data_rows @ data_rows) / max(n_res - n_unk, 1)
     cov7 = np.linalg.inv(J.T @ J) * (1.0 if absolute_sigma else red)
     cov8 = covariance_8_from_identifiable(opt.x, phi, cov7, float(prior.dists["phi"].var()))
     params = SensorParams.from_array(from_identifiable(opt.x, phi))

@@ -48,7 +48,7 @@ def test_laplace_hot_path_matches_general_residuals(room):
     sig, w, _ = lik.noise(np.zeros((3, 0)))
     R, _, Jq = lik.residuals(theta, q, sig, w, jacobian=True)
     rr, Cp, Cs, g0, g1 = lik._point_terms(theta, q[..., 0], q[..., 1], sig, w)
-    C00, C01, C11 = (p + s for p, s in zip(Cp, Cs))
+    C00, C01, C11 = (p + s for p, s in zip(Cp, Cs, strict=True))
     np.testing.assert_allclose(rr, np.sum(R * R, -1), rtol=1e-12)
     C = np.einsum("...ki,...kj->...ij", Jq, Jq)
     g = np.einsum("...ki,...k->...i", Jq, R)
