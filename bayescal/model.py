@@ -119,7 +119,6 @@ class LaserLikelihood:
                                  f"{(self.n, 3)}, got shape {np.shape(sigma_scene)}") from None
             self.w_scene = np.where(np.isfinite(s), 1.0 / s, 0.0)
             self._scene_mask = np.isfinite(s)
-        self.n_scene_rows = int(self._scene_mask.sum())
         self.n_noise = int(self.infer_px) + int(self.infer_scene)
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         self.ref_kappa = 0.05

@@ -24,7 +24,7 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from ._validation import resolve_rng
-from .parameters import PARAM_NAMES, SensorParams, to_identifiable
+from .parameters import PARAM_NAMES, SensorParams
 
 __all__ = ["default_prior", "Prior"]
 
@@ -222,10 +222,6 @@ class Prior:
         n = len(phi)
         u = (k + rng.random(len(theta))) / n
         return np.asarray(self.dists["phi"].ppf(u), dtype=float)
-
-    def theta_mean_params(self):
-        """Prior means in identifiable coordinates, shape (7,)."""
-        return to_identifiable(self.mean().to_array())
 
     # -- least-squares form ------------------------------------------------
     def residuals(self, a, *, jacobian=False):

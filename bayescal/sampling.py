@@ -156,66 +156,6 @@ class _CollapsedTarget:
         return np.where(np.isfinite(out), out, -np.inf)
 
 
-def refine_laplace(logp, center, cov, *, n_newton=3, step=0.05):
-    """Newton steps on the collapsed log target with a finite-difference Hessian.
-
-    The MAP's Laplace covariance comes from the Gauss-Newton Hessian of the joint
-    problem; where the posterior is strongly curved (large rooms with no z information
-    in the approximate points) it can be several times too wide along the ridge, which
-    starves an independence proposal. This measures the collapsed target itself: in
-    the coordinates ``z`` whitened by ``cov``, central differences (step ``step``)
-    give the gradient and Hessian, vectorised in one batch per Newton step.
-
-    Returns
-    -------
-    mode : ndarray, shape (ndim,)
-    cov : ndarray, shape (ndim, ndim)
-        Inverse of the negative Hessian at the mode; the input ``cov`` where the
-        Hessian is not negative definite.
-    """
-    center = np.asarray(center, float)
-    d = len(center)
-    e, V = np.linalg.eigh(cov)
-    L = V * np.sqrt(np.clip(e, 1e-300, None))
-    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
-    z0 = np.zeros(d)
-    H = None
-    for _ in range(n_newton):
-        pts = [z0]
-        for i in range(d):
-            for sgn in (1, -1):
-                z = z0.copy()
-                z[i] += sgn * step
-                pts.append(z)
-        for i, j in pairs:
-            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-                z = z0.copy()
-                z[i] += si * step
-                z[j] += sj * step
-                pts.append(z)
-        f = logp(center + np.array(pts) @ L.T)
-        if not np.all(np.isfinite(f)):
-            break
-        f0, fi, fij = f[0], f[1:1 + 2 * d].reshape(d, 2), f[1 + 2 * d:].reshape(-1, 4)
-        g = (fi[:, 0] - fi[:, 1]) / (2 * step)
-        H = np.diag((fi[:, 0] - 2 * f0 + fi[:, 1]) / step**2)
-        for k, (i, j) in enumerate(pairs):
-            H[i, j] = H[j, i] = (fij[k, 0] - fij[k, 1] - fij[k, 2] + fij[k, 3]) / (4 * step**2)
-        w, U = np.linalg.eigh(-H)
-        if np.any(w <= 0):
-            H = None
-            break
-        dz = U @ ((U.T @ g) / w)
-        dz *= min(1.0, 1.0 / max(np.max(np.abs(dz)), 1e-12))      # at most 1 sd per step
-        z0 = z0 + dz
-        if np.max(np.abs(dz)) < 1e-3:
-            break
-    if H is None:
-        return center, cov
-    cov_new = L @ np.linalg.inv(-H) @ L.T
-    return center + L @ z0, 0.5 * (cov_new + cov_new.T)
-
-
 def _seeded_sampler(nwalkers, ndim, fn, rng, moves):
     import emcee
 
