@@ -113,15 +113,10 @@ N_POINTS = 100
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("room", [
-    "small",
-    pytest.param("large", marks=pytest.mark.xfail(
-        strict=True,
-        reason="known: with the priors' centres drawn around the truth, xi, gamma_u, gamma_v "
-               "and h under-cover in the 5000 mm room (90 % intervals held the truth in "
-               "80-85 % of 80 replications; points, u0, v0, beta nominal); see "
-               "docs/validation.md")),
-])
+# The large room is borderline today (docs/validation.md: xi, gamma, h covered 0.80-0.90 at
+# the 90 % level in two check runs, with a ~0.3 sd bias shared by the MAP): this test may
+# fail there, and that failure is the open problem, not a flaky tolerance.
+@pytest.mark.parametrize("room", ["small", "large"])
 def test_coverage_fixed_scene(room):
     reps = cov.run_coverage(cov.ROOMS[room], n_reps=N_REPS, n_points=N_POINTS,
                             seed=[2024, len(room)], workers=WORKERS)
