@@ -632,14 +632,19 @@ def studies_dir():
         "studies"
 
 
+#: scripts in studies/ that are not studies (benchmark.py writes a file, `make bench`)
+NOT_STUDIES = {"benchmark"}
+
+
 def cmd_study(args):
     """Run ``studies/NAME.py --out OUT [--quick]``."""
     folder = studies_dir()
-    available = sorted(p.stem for p in folder.glob("*.py") if not p.stem.startswith("_")) \
+    available = sorted(p.stem for p in folder.glob("*.py")
+                       if not p.stem.startswith("_") and p.stem not in NOT_STUDIES) \
         if folder.is_dir() else []
     name = args.name[:-3] if args.name.endswith(".py") else args.name
     script = folder / f"{name}.py"
-    if name.startswith("_") or not script.is_file():
+    if name.startswith("_") or name in NOT_STUDIES or not script.is_file():
         raise UsageError(f"no study named {args.name!r} in {folder}; available: "
                          + (", ".join(available) if available else "none"))
     out = args.out or f"out/study-{name}"

@@ -361,12 +361,16 @@ def test_study_unknown_name_lists_available(tmp_path):
     (tmp_path / "studies").mkdir()
     (tmp_path / "studies" / "range_sweep.py").write_text("")
     (tmp_path / "studies" / "_helpers.py").write_text("")
+    (tmp_path / "studies" / "benchmark.py").write_text("")
     env = {"BAYESCAL_STUDIES_DIR": str(tmp_path / "studies")}
     r = run("study", "nope", "--out", "o", cwd=tmp_path, env=env)
     assert r.returncode == 2
     assert "no study named 'nope'" in r.stderr and "available: range_sweep" in r.stderr
-    assert "_helpers" not in r.stderr
+    assert "_helpers" not in r.stderr and "benchmark" not in r.stderr.split("available:")[1]
     assert not (tmp_path / "o").exists()
+    # the benchmark script writes a file, not a study folder: not runnable as a study
+    r = run("study", "benchmark", "--out", "o", cwd=tmp_path, env=env)
+    assert r.returncode == 2 and "no study named 'benchmark'" in r.stderr
 
 
 def test_study_runs_the_script_with_out_and_quick(tmp_path):
