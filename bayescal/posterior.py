@@ -86,7 +86,8 @@ class Posterior:
         Inferred ``log sigma_px`` / ``log kappa`` (K = 0 when both were given).
     tau, ess : ndarray, shape (7 + K,)
         Integrated autocorrelation time (steps) and effective sample size of
-        the sampled coordinates (identifiable parameters, then noise).
+        the sampled coordinates ``(xi, R_u, R_v, u0, v0, h, beta)`` (ring radii
+        in place of gamma, see :func:`bayescal.sampling.to_sampling`), then noise.
     converged : bool
         Chain longer than 50 tau after burn-in.
     """

@@ -364,8 +364,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     else:
         raise RuntimeError("could not place the walkers: the MAP start is outside the support")
 
-    # tuning: emcee with a Laplace-based independence proposal and DE; its second half
-    # gives the mean and covariance of the frozen proposal of the production run
+    # tuning: two short emcee runs with an independence proposal (first from the Laplace
+    # covariance, then from the first run's draws) and DE; the last two thirds of the
+    # second run give the mean and covariance of the production run's frozen proposal
     n_tune = int(n_tune)
     state, mean, cov = p0, psi_map, cov0
     prod_moves = moves
