@@ -16,6 +16,7 @@ same pipelines on tiny settings in a few seconds each.
 
 import importlib.util
 import pathlib
+import sys
 import warnings
 
 import numpy as np
@@ -29,6 +30,9 @@ from bayescal.sampling import sample_joint
 _SPEC = importlib.util.spec_from_file_location(
     "bayescal_study_coverage", pathlib.Path(__file__).parents[1] / "studies" / "coverage.py")
 cov = importlib.util.module_from_spec(_SPEC)
+# registered before it runs, so that its functions pickle by reference into the worker
+# processes of run_coverage / run_sbc
+sys.modules[_SPEC.name] = cov
 _SPEC.loader.exec_module(cov)
 
 WORKERS = 2
