@@ -46,6 +46,7 @@ import numpy as np
 
 __all__ = [
     "InputError",
+    "to_jsonable",
     "Table",
     "LaserData",
     "read_table",
@@ -666,20 +667,35 @@ def load_calibration_data(path, laser_path=None):
     return CalibrationData(**f)
 
 
-def _jsonable(obj):
+def to_jsonable(obj, *, nonfinite="string"):
+    """Convert numpy arrays/scalars (and paths) to plain JSON types, recursively.
+
+    Parameters
+    ----------
+    obj : object
+    nonfinite : {"string", "null"}
+        NaN and infinities become ``"nan"``/``"inf"``/``"-inf"`` (default, lossless)
+        or ``None``.
+    """
+    if nonfinite not in ("string", "null"):
+        raise ValueError(f"nonfinite must be 'string' or 'null', got {nonfinite!r}")
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): to_jsonable(v, nonfinite=nonfinite) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [to_jsonable(v, nonfinite=nonfinite) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+        return to_jsonable(obj.tolist(), nonfinite=nonfinite)
     if isinstance(obj, (np.bool_, bool)):
         return bool(obj)
     if isinstance(obj, (np.integer,)):
         return int(obj)
     if isinstance(obj, (float, np.floating)):
         v = float(obj)
-        return v if math.isfinite(v) else ("inf" if v > 0 else "-inf" if v < 0 else "nan")
+        if math.isfinite(v):
+            return v
+        if nonfinite == "null":
+            return None
+        return "inf" if v > 0 else "-inf" if v < 0 else "nan"
     if isinstance(obj, pathlib.Path):
         return str(obj)
     return obj
@@ -688,7 +704,7 @@ def _jsonable(obj):
 def write_json(path, obj):
     """Write ``obj`` as indented JSON (numpy arrays as lists, non-finite floats as strings)."""
     path = pathlib.Path(path)
-    path.write_text(json.dumps(_jsonable(obj), indent=2) + "\n", encoding="utf-8")
+    path.write_text(json.dumps(to_jsonable(obj), indent=2) + "\n", encoding="utf-8")
     return path
 
 

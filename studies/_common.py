@@ -23,7 +23,6 @@ import argparse
 import concurrent.futures
 import contextlib
 import json
-import math
 import pathlib
 import sys
 import time
@@ -32,6 +31,7 @@ import warnings
 import numpy as np
 
 import bayescal as bc
+import bayescal.io
 
 __all__ = ["parse_args", "executor", "run_trials", "OutputDir", "write_json", "to_jsonable",
            "sensor_for_trial", "three_methods", "bayes_settings", "scene_sigma",
@@ -184,20 +184,7 @@ def run_trials(fn, specs, *, seed, workers=2, scheduler=None, progress=True):
 # --------------------------------------------------------------------------- output
 def to_jsonable(obj):
     """Convert numpy scalars/arrays to JSON types; NaN and infinities become None."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer, int)):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
+    return bayescal.io.to_jsonable(obj, nonfinite="null")
 
 
 class OutputDir:

@@ -45,6 +45,7 @@ import numpy as np
 from scipy import stats
 
 import bayescal as bc
+import bayescal.io
 from bayescal.parameters import to_identifiable
 
 __all__ = ["ROOMS", "LEVELS", "SCENE_FLOOR_MM", "SAMPLER", "fixed_scene", "noisy_data",
@@ -496,13 +497,11 @@ def _plot_sbc(counts, chi2, n_sims, path):
 
 
 def _jsonable(x):
+    """JSON-ready copy of the results (the pooled NSE arrays left out)."""
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items() if not k.startswith("nse_pooled")}
-    if isinstance(x, (np.ndarray, list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return x.item()
-    return x
+        x = {k: w for k, w in x.items() if not k.startswith("nse_pooled")}
+        return {k: _jsonable(w) for k, w in x.items()}
+    return bayescal.io.to_jsonable(x, nonfinite="null")
 
 
 def main(argv=None):
