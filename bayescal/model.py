@@ -120,6 +120,11 @@ class LaserLikelihood:
             self.w_scene = np.where(np.isfinite(s), 1.0 / s, 0.0)
             self._scene_mask = np.isfinite(s)
         self.n_noise = int(self.infer_px) + int(self.infer_scene)
+        self._n_rows = 2 + self._scene_mask.sum(axis=1)         # residual rows per point
+        if not self.infer_scene:
+            with np.errstate(divide="ignore"):
+                self._log_w_given = np.where(self._scene_mask, np.log(self.w_scene),
+                                             0.0).sum(axis=1)
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         self.ref_kappa = 0.05
 
@@ -166,11 +171,11 @@ class LaserLikelihood:
             w = np.broadcast_to(w, lead + (self.n, 3))
         else:
             w = np.broadcast_to(self.w_scene, lead + (self.n, 3))
-        n_rows = 2 + self._scene_mask.sum(axis=1)
-        with np.errstate(divide="ignore"):
-            log_w = np.where(self._scene_mask, np.log(w), 0.0)
-        log_norm = (-2.0 * np.log(sig)[..., None] + log_w.sum(axis=-1)
-                    - 0.5 * n_rows * _LOG2PI)
+        if self.infer_scene:
+            log_w = np.log(w).sum(axis=-1)                      # every axis used
+        else:
+            log_w = self._log_w_given                           # constant: computed once
+        log_norm = -2.0 * np.log(sig)[..., None] + log_w - 0.5 * self._n_rows * _LOG2PI
         return sig, w, log_norm
 
     def split(self, psi):

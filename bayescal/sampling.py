@@ -433,9 +433,8 @@ def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rn
     Returns
     -------
     dict
-        ``chain`` (steps, walkers, 7 + 2N), ``param_samples`` callable support via
-        ``theta`` (S, 7), ``q`` (S, N, 2) after discarding the first half,
-        ``tau``, ``acceptance``.
+        ``chain`` (steps, walkers, 7 + 2N); ``theta`` (S, 7) and ``q`` (S, N, 2),
+        the second half of the chain flattened; ``tau``; ``acceptance``.
     """
     from .simultaneous import calibrate_simultaneous
 
