@@ -29,7 +29,10 @@ from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
 
-__all__ = ["LaserLikelihood", "POINT_PRIORS"]
+__all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS"]
+
+#: log-uniform prior bounds of the inferred noise levels
+NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
 
 #: priors of the latent scene coordinates: see :class:`LaserLikelihood`
 POINT_PRIORS = ("jeffreys", "flat")
@@ -177,6 +180,37 @@ class LaserLikelihood:
             log_w = self._log_w_given                           # constant: computed once
         log_norm = -2.0 * np.log(sig)[..., None] + log_w - 0.5 * self._n_rows * _LOG2PI
         return sig, w, log_norm
+
+    @property
+    def extra_names(self):
+        """Names of the sampled coordinates after theta, in order (the "extra globals").
+
+        The collapsed sampler works on ``psi = (theta, extra)``; any likelihood
+        it samples provides ``n``, ``extra_names``, :meth:`log_prior_extra`,
+        :meth:`laplace`, :meth:`point_log_density` and :meth:`points_3d`.
+        Here the extras are ``log sigma_px`` and ``log kappa`` where inferred.
+        """
+        return tuple(n for n, on in (("sigma_px", self.infer_px), ("kappa", self.infer_scene))
+                     if on)
+
+    def log_prior_extra(self, extra):
+        """Log prior density of the extra globals, shape (...); ``-inf`` outside the support.
+
+        Each inferred noise level has a log-uniform prior on :data:`NOISE_BOUNDS`
+        (flat in the sampled ``log`` value, up to a constant).
+        """
+        extra = np.asarray(extra, dtype=float)
+        lp = np.zeros(extra.shape[:-1])
+        for k, name in enumerate(self.extra_names):
+            lo, hi = np.log(NOISE_BOUNDS[name])
+            x = extra[..., k]
+            lp = np.where((x > lo) & (x < hi), lp, -np.inf)
+        return lp
+
+    def points_3d(self, psi, q):
+        """3D points (..., N, 3), mm, of the scene coordinates ``q`` (..., N, 2) under ``psi``."""
+        theta = np.asarray(psi, dtype=float)[..., :7]
+        return cone_point_theta(theta[..., None, :], q)
 
     def split(self, psi):
         """Split a sampled vector ``(..., 7 + n_noise)`` into theta and noise entries."""

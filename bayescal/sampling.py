@@ -29,8 +29,7 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .laser import cone_point_theta
-from .model import LaserLikelihood
+from .model import NOISE_BOUNDS, LaserLikelihood
 from .moves import IndependenceMove
 from .parameters import from_identifiable
 from .priors import Prior
@@ -38,10 +37,6 @@ from .priors import Prior
 __all__ = ["sample_posterior", "sample_joint", "NotConvergedWarning", "NotConvergedError",
            "NoiseAtBoundWarning",
            "default_moves", "NOISE_BOUNDS"]
-
-#: log-uniform prior bounds of the inferred noise levels
-NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
-
 
 class NotConvergedWarning(UserWarning):
     """The chain is shorter than 50 autocorrelation times (results may be biased)."""
@@ -130,18 +125,9 @@ class _CollapsedTarget:
 
     def __init__(self, lik, prior, q_start, n_iter):
         self.lik, self.prior, self.q_start, self.n_iter = lik, prior, q_start, n_iter
-        self.bounds = []
-        if lik.infer_px:
-            self.bounds.append(np.log(NOISE_BOUNDS["sigma_px"]))
-        if lik.infer_scene:
-            self.bounds.append(np.log(NOISE_BOUNDS["kappa"]))
 
     def log_prior(self, psi):
-        lp = self.prior.logpdf_theta(psi[..., :7])
-        for k, (lo, hi) in enumerate(self.bounds):
-            x = psi[..., 7 + k]
-            lp = np.where((x > lo) & (x < hi), lp, -np.inf)
-        return lp
+        return self.prior.logpdf_theta(psi[..., :7]) + self.lik.log_prior_extra(psi[..., 7:])
 
     def __call__(self, s):
         s = np.atleast_2d(s)
@@ -327,7 +313,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
-    ndim = 7 + lik.n_noise
+    ndim = 7 + len(lik.extra_names)
     n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
     if n_walkers < 2 * ndim:
         raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
@@ -393,11 +379,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     phi = prior.sample_phi(psi[:, :7], rng=rng)
     a = from_identifiable(psi[:, :7], phi)
     q, imh_acc = _draw_points(lik, psi, sol.q, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
-    pts = cone_point_theta(psi[:, None, :7], q)
+    pts = lik.points_3d(psi, q)
     post = Posterior(
         param_samples=a, point_samples=pts, noise_samples=psi[:, 7:],
-        noise_names=tuple(n for n, on in (("sigma_px", lik.infer_px),
-                                          ("kappa", lik.infer_scene)) if on),
+        noise_names=lik.extra_names,
         pixels=lik.pixels, approx_points=lik.approx,
         sigma_px=sigma_px, sigma_scene=None if sigma_scene is None else
         np.broadcast_to(np.asarray(sigma_scene, float), lik.approx.shape).copy(),
