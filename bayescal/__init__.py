@@ -9,6 +9,7 @@ See ``docs/`` for the model, conventions and the public API.
 """
 
 from .camera import backproject, project
+from .floorplan import FloorPlan
 from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .metrics import reconstruction_error, reconstruction_errors
 from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
@@ -40,6 +41,7 @@ __all__ = [
     "simulate_room",
     "room_walls",
     "Dataset",
+    "FloorPlan",
     "CalibrationData",
     "calibrate_sequential",
     "CalibrationResult",

@@ -19,6 +19,7 @@ import numpy as np
 
 from ._validation import check_positive, resolve_rng
 from .camera import project_theta
+from .floorplan import FloorPlan
 from .parameters import SensorParams, to_identifiable
 
 __all__ = ["Dataset", "CalibrationData", "simulate_room", "room_walls", "rotation_matrix",
@@ -111,6 +112,12 @@ class Dataset:
     sigma_px, sigma_3d, approx_error, range_mm : float
         Settings used.
     approx_model : str
+    floor_plan : FloorPlan or None
+        The room's walls measured roughly: each wall's distance off by one
+        draw of ``distance_sd = max(approx_error, 0.001) * d_k`` (for the
+        ``"wall"`` model: the very errors of the approximate points, the same
+        rough measurement), each orientation off by one draw of
+        ``plan_angle_sd``; those sds are the plan's.
     """
 
     params: SensorParams
@@ -127,6 +134,7 @@ class Dataset:
     range_mm: float
     approx_model: str
     nominal: SensorParams = field(default_factory=SensorParams.paper)
+    floor_plan: FloorPlan | None = None
 
     @property
     def n_points(self):
@@ -225,7 +233,8 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
 
 def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.5,
                   approx_error=0.0, sigma_3d=0.0, approx_model="fig9", nominal=None,
-                  calib_distance_mm=None, n_grid=7, n_calib_laser=80, rng=None):
+                  calib_distance_mm=None, n_grid=7, n_calib_laser=80, plan_angle_sd=0.01,
+                  rng=None):
     """Simulate the paper's room: laser points, their pixels and approximate 3D points.
 
     Parameters
@@ -267,6 +276,10 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         Pattern points per plane row (the grid is ``n_grid x (n_grid - 2)``).
     n_calib_laser : int, optional
         Laser points on the calibration planes.
+    plan_angle_sd : float, optional
+        sd (rad) of each wall's orientation in ``ds.floor_plan`` (default 0.01
+        rad, about half a degree: a wall's direction read off a drawing or
+        squared with a tape).
     rng : numpy.random.Generator, int or None
         Randomness; the same seed gives the same dataset.
 
@@ -297,8 +310,10 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         raise ValueError(f"approx_model must be one of {APPROX_MODELS}, got {approx_model!r}")
     calib_distance = (0.8 * range_mm if calib_distance_mm is None
                       else check_positive(calib_distance_mm, "calib_distance_mm"))
+    plan_angle_sd = check_positive(plan_angle_sd, "plan_angle_sd")
     ss = np.random.SeedSequence(resolve_rng(rng).integers(2**63))
     rng_pix, rng_approx, rng_cal = (np.random.default_rng(s) for s in ss.spawn(3))
+    rng_plan = np.random.default_rng(ss.spawn(1)[0])    # 4th child: earlier streams unchanged
 
     walls = room_walls(range_mm, n_walls)
     az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
@@ -320,6 +335,7 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
             axy = xy + eps[:, :2] * sigma_scene[:, :2]
         else:
             wall_eps = rng_approx.normal(0.0, approx_error, len(walls))
+            plan_eps = wall_eps
             axy = xy * (1.0 + wall_eps[wall_idx])[:, None]
             sigma_scene[:, :2] = approx_error * np.abs(xy)
         sigma_scene[:, 2] = np.inf
@@ -328,10 +344,23 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     if sigma_3d > 0:
         sigma_scene = np.sqrt(sigma_scene**2 + sigma_3d**2)
 
+    floor_plan = _rough_plan(walls, approx_error, plan_angle_sd, rng_plan,
+                             plan_eps if approx_model == "wall" else None)
     calib = _calibration(params, calib_distance=calib_distance, sigma_px=sigma_px,
                          sigma_3d=sigma_3d, approx_error=approx_error, n_grid=int(n_grid),
                          n_laser=int(n_calib_laser), rng=rng_cal)
     return Dataset(params=params, pixels=pixels, pixels_true=pixels_true, points=points,
                    approx_points=approx, sigma_scene=sigma_scene, walls=walls, calibration=calib,
                    sigma_px=sigma_px, sigma_3d=sigma_3d, approx_error=approx_error,
-                   range_mm=range_mm, approx_model=approx_model, nominal=nominal)
+                   range_mm=range_mm, approx_model=approx_model, nominal=nominal,
+                   floor_plan=floor_plan)
+
+
+def _rough_plan(walls, approx_error, angle_sd, rng, rel_eps=None):
+    """The room's plan measured roughly (see :class:`Dataset`), a FloorPlan."""
+    true = FloorPlan(walls, distance_sd=1.0, angle_sd=1.0)
+    rel = max(approx_error, 1e-3)
+    eps = rng.normal(0.0, rel, len(walls)) if rel_eps is None else rel_eps
+    d = true.distances * (1.0 + eps)
+    a = true.angles + rng.normal(0.0, angle_sd, len(walls))
+    return FloorPlan.from_lines(d, a, distance_sd=rel * true.distances, angle_sd=angle_sd)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .floorplan import FloorPlan
 from .model import LaserLikelihood
 from .parameters import (
     IDENTIFIABLE_NAMES,
@@ -28,6 +29,7 @@ from .parameters import (
     identifiable_jacobian,
     to_identifiable,
 )
+from .plan_lsq import calibrate_plan
 from .priors import Prior
 from .results import (
     CalibrationResult,
@@ -202,7 +204,10 @@ def _resolve_init(init, prior):
     raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
 
 
-def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prior=None,
+_REQUIRED = object()      # sigma_scene: required with approximate points, absent with a plan
+
+
+def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQUIRED, prior=None,
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
@@ -211,8 +216,11 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prio
     ----------
     pixels : array_like, shape (N, 2)
         Laser pixels ``(u, v)``, px.
-    approx_points : array_like, shape (N, 3)
-        Approximate 3D positions of the laser points in frame C, mm.
+    approx_points : array_like, shape (N, 3), or FloorPlan
+        Approximate 3D positions of the laser points in frame C, mm; or a
+        rough floor plan (:class:`~bayescal.FloorPlan`): the points are then on
+        its uncertain walls (``docs/floorplan.md``), ``sigma_scene`` is not
+        given and ``extras`` adds ``walls`` (W, 2) and ``wall_covariance``.
     sigma_px : float or None
         Pixel noise standard deviation, px; ``None`` estimates it (alternating
         with the fit, from the pixel residuals).
@@ -259,6 +267,16 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prio
     >>> res.converged
     True
     """
+    if isinstance(approx_points, FloorPlan):
+        if sigma_scene is not _REQUIRED or not estimate_points:
+            raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
+                            "(the plan carries its own sds); leave them out")
+        return calibrate_plan(pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
+                              absolute_sigma=absolute_sigma, max_iter=max_iter,
+                              raise_on_failure=raise_on_failure)
+    if sigma_scene is _REQUIRED:
+        raise TypeError("calibrate_simultaneous() missing required keyword argument "
+                        "'sigma_scene' (needed with approximate points)")
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
     n = lik.n
     if n < 4:

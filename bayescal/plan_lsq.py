@@ -1,0 +1,299 @@
+"""Least squares on a floor plan: MAP and Laplace covariance of sensor and walls.
+
+Unknowns: ``g = (theta (7), phi, d_0, a_0, ..., d_{W-1}, a_{W-1})`` and one
+azimuth ``t_i`` per laser point; rows: two whitened pixel residuals per point
+(:class:`~bayescal.planmodel.PlanLikelihood`), the eight sensor prior rows
+(:class:`~bayescal.priors.Prior`, ``phi`` seen by its prior only, as in the
+per-point method) and ``2W`` wall prior rows from the plan. Levenberg-Marquardt
+with the scalar azimuths eliminated by a Schur complement: O(N) per iteration.
+
+Each point's wall is re-decided at every iteration from its azimuth and the
+current corner azimuths (the cost is continuous across a corner: both walls
+meet there). With the Jeffreys point prior and a one-dimensional latent, the
+maximum over ``(g, t)`` is also the maximum of the collapsed posterior the
+sampler explores, and the inverse Schur complement is its Laplace covariance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .floorplan import FloorPlan, plan_point
+from .parameters import (
+    IDENTIFIABLE_NAMES,
+    PARAM_NAMES,
+    SensorParams,
+    from_identifiable,
+    identifiable_jacobian,
+    to_identifiable,
+)
+from .planmodel import PlanLikelihood
+from .priors import Prior
+from .results import CalibrationResult, ConvergenceError, identifiability_report
+
+__all__ = ["calibrate_plan", "plan_map_start", "PlanMapSolution"]
+
+
+class PlanMapSolution:
+    """Raw MAP of the floor-plan least squares (internal; users get a CalibrationResult).
+
+    Attributes
+    ----------
+    g : ndarray, shape (8 + 2W,)
+        ``(theta, phi, walls flattened)`` at the MAP.
+    t : ndarray, shape (N,)
+        Point azimuths, rad.
+    wall_index : ndarray of int, shape (N,)
+    cov : ndarray, shape (8 + 2W, 8 + 2W)
+        Laplace covariance of ``g`` (inverse Schur complement).
+    """
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def _normal_equations(lik, prior, g, t, sig):
+    W, N = lik.n_walls, lik.n
+    G = 8 + 2 * W
+    theta, phi, walls = g[:7], g[7], g[8:].reshape(W, 2)
+    k = lik.hard_wall_index(walls, t)
+    R, Jth, Jw, Jt = lik.residuals(theta, walls, t, k, sig, jacobian=True)
+    idx = np.arange(N)
+    Jg = np.zeros((N, 2, G))
+    Jg[:, :, :7] = Jth
+    Jg[idx, :, 8 + 2 * k] = Jw[:, :, 0]
+    Jg[idx, :, 9 + 2 * k] = Jw[:, :, 1]
+    a = from_identifiable(theta, phi)
+    rp, D = prior.residuals(a, jacobian=True)
+    Jp = D @ identifiable_jacobian(theta, phi)
+    rw = (g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    A = np.einsum("nki,nkj->ij", Jg, Jg)
+    A[:8, :8] += Jp.T @ Jp
+    A[8:, 8:] += np.diag(1.0 / lik.plan.param_sd**2)
+    B = np.einsum("nki,nk->ni", Jg, Jt)
+    C = np.einsum("nk,nk->n", Jt, Jt)
+    gg = np.einsum("nki,nk->i", Jg, R)
+    gg[:8] += Jp.T @ rp
+    gg[8:] += rw / lik.plan.param_sd
+    gt = np.einsum("nk,nk->n", Jt, R)
+    cost = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
+    return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, k=k, Jp=Jp)
+
+
+def _cost(lik, prior, g, t, sig):
+    W = lik.n_walls
+    walls = g[8:].reshape(W, 2)
+    if np.any(walls[:, 0] <= 0):
+        return np.inf
+    R = lik.residuals(g[:7], walls, t, lik.hard_wall_index(walls, t), sig)
+    rp = prior.residuals(from_identifiable(g[:7], g[7]))
+    rw = (g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    c = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
+    return c if np.isfinite(c) else np.inf
+
+
+def _schur(ne, lam=0.0):
+    """Damped Schur complement of the azimuths; returns S, the step solver."""
+    A, B, C = ne["A"], ne["B"], ne["C"]
+    Ad = A + lam * np.diag(np.diag(A))
+    Cd = C * (1.0 + lam)
+    S = Ad - np.einsum("ni,nj,n->ij", B, B, 1.0 / Cd)
+    return S, Cd
+
+
+def _step(ne, lam):
+    S, Cd = _schur(ne, lam)
+    rhs = -(ne["gg"] - np.einsum("ni,n->i", ne["B"], ne["gt"] / Cd))
+    dg = np.linalg.solve(S, rhs)
+    dt = -(ne["gt"] + ne["B"] @ dg) / Cd
+    return dg, dt
+
+
+def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10):
+    """Levenberg-Marquardt on (g, t) at fixed pixel noise; returns a PlanMapSolution."""
+    lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
+    cost, ne = _normal_equations(lik, prior, g, t, sig)
+    if not np.isfinite(cost):
+        raise ValueError("the starting point puts some laser points outside the model's "
+                         "domain (non-finite residuals); give a better init or plan")
+    n_done = 0
+    for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
+        improved = False
+        for _ in range(30):
+            try:
+                dg, dt = _step(ne, lam)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            new_cost = _cost(lik, prior, g + dg, t + dt, sig)
+            nfev += 1
+            if new_cost < cost:
+                improved = True
+                break
+            lam *= 4.0
+        if not improved:
+            converged, message = True, "no further decrease of the cost (at a minimum)"
+            break
+        small = (np.all(np.abs(dg) <= xtol * (np.abs(g) + xtol))
+                 and np.all(np.abs(dt) <= xtol))
+        g, t = g + dg, t + dt
+        rel = (cost - new_cost) / max(new_cost, 1e-300)
+        cost, ne = _normal_equations(lik, prior, g, t, sig)
+        lam = max(lam / 3.0, 1e-12)
+        if rel < ftol or small:
+            converged, message = True, "converged (relative cost decrease or step below tolerance)"
+            break
+    S, _ = _schur(ne)
+    cov = np.linalg.inv(S)
+    return PlanMapSolution(g=g, t=t, cost=float(cost), cov=0.5 * (cov + cov.T), S=S, ne=ne,
+                           wall_index=ne["k"], nfev=nfev, n_iter=n_done, converged=converged,
+                           message=message, sigma_px=float(sig))
+
+
+def _point_covariances(lik, sol):
+    """3x3 Laplace covariance of each point (azimuth, sensor and wall uncertainty)."""
+    W, N = lik.n_walls, lik.n
+    g, t, cov, ne = sol.g, sol.t, sol.cov, sol.ne
+    k = sol.wall_index
+    walls = g[8:].reshape(W, 2)
+    _, dPt, dPth, dPw = plan_point(g[:7], t, walls[k, 0], walls[k, 1], jacobian=True)
+    idx = np.arange(N)
+    Gg = np.zeros((N, 3, 8 + 2 * W))
+    Gg[:, :, :7] = dPth
+    Gg[idx, :, 8 + 2 * k] = dPw[:, :, 0]
+    Gg[idx, :, 9 + 2 * k] = dPw[:, :, 1]
+    B, C = ne["B"], ne["C"]
+    K = -np.einsum("ij,nj->ni", cov, B) / C[:, None]              # cov(g, t_i): (N, G)
+    var_t = 1.0 / C + np.einsum("ni,ij,nj->n", B, cov, B) / C**2
+    GK = np.einsum("nai,ni->na", Gg, K)                            # (N, 3)
+    return (var_t[:, None, None] * dPt[:, :, None] * dPt[:, None, :]
+            + dPt[:, :, None] * GK[:, None, :] + GK[:, :, None] * dPt[:, None, :]
+            + np.einsum("nai,ij,nbj->nab", Gg, cov, Gg))
+
+
+def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
+    """MAP with the pixel noise given or estimated; returns (lik, prior, sol)."""
+    if not isinstance(plan, FloorPlan):
+        raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
+    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    if init is None:
+        init = prior.mean()
+    elif not isinstance(init, SensorParams):
+        raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
+    lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init)
+    if lik.n < 4:
+        raise ValueError(f"need at least 4 laser points, got N={lik.n}")
+    theta0 = to_identifiable(init.to_array())
+    g = np.concatenate([theta0, [init.phi], plan.param_nominal])
+    t = lik._start(theta0[None])[0]
+    sig = 1.0 if lik.infer_px else lik.sigma_px
+    sol = None
+    for _ in range(4 if lik.infer_px else 1):
+        sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
+        g, t = sol.g, sol.t
+        if lik.infer_px:
+            # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
+            # freedom per point: two pixel rows, one azimuth); maximum at mean S_i
+            sig = float(sig * np.sqrt(np.sum(sol.ne["R"] ** 2) / lik.n))
+    if lik.infer_px:
+        sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
+        lik.set_reference_noise(sigma_px=sig)
+    # re-pick candidate walls at the MAP sensor (for the sampler's likelihood)
+    lik.assign(SensorParams.from_array(from_identifiable(sol.g[:7], sol.g[7])))
+    return lik, prior, sol
+
+
+def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
+                   max_iter=200, raise_on_failure=True):
+    """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
+
+    Called by :func:`bayescal.calibrate_simultaneous` when its second argument
+    is a :class:`~bayescal.FloorPlan`; parameters as there.
+
+    Returns
+    -------
+    CalibrationResult
+        ``params``, ``points`` (N, 3), ``covariance`` (8, 8); ``extras``:
+        ``walls`` (W, 2) the estimated ``(d_k, a_k)``, ``wall_covariance``
+        (2W, 2W) in the order ``d_0, a_0, d_1, ...``, ``wall_index`` (N,),
+        ``azimuths`` (N,), ``point_covariance`` (N, 3, 3), ``map``, ``noise``.
+    """
+    lik, _, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
+                       max_iter=max_iter)
+    return _make_result(lik, sol, absolute_sigma, raise_on_failure)
+
+
+def _make_result(lik, sol, absolute_sigma, raise_on_failure):
+    W, N = lik.n_walls, lik.n
+    g, sig = sol.g, sol.sigma_px
+    theta, phi = g[:7], g[7]
+    R = sol.ne["R"]
+    chi2 = float(np.sum(R * R))
+    n_res, n_unk = 2 * N, 7 + 2 * W + N
+    red = chi2 / max(n_res - N, 1)            # plan rows carry the walls: N dof per point pair
+    scale = 1.0 if absolute_sigma else red
+    cov = sol.cov * scale
+    J = identifiable_jacobian(theta, phi)
+    cov8 = J @ cov[:8, :8] @ J.T
+    params = SensorParams.from_array(from_identifiable(theta, phi))
+    walls = g[8:].reshape(W, 2)
+    points = plan_point(theta, sol.t, walls[sol.wall_index, 0], walls[sol.wall_index, 1])
+    # identifiability of the 8 paper parameters from pixels and plan (walls reduced out,
+    # sensor priors left out)
+    Jp = sol.ne["Jp"]
+    info = sol.S.copy()
+    info[:8, :8] -= Jp.T @ Jp
+    info_t = info[:8, :8] - info[:8, 8:] @ np.linalg.solve(info[8:, 8:], info[8:, :8])
+    e, V = np.linalg.eigh(0.5 * (info_t[:7, :7] + info_t[:7, :7].T))
+    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
+    report = identifiability_report(root @ np.linalg.inv(J)[:7], PARAM_NAMES)
+    result = CalibrationResult(
+        method="simultaneous", params=params, points=points, covariance=0.5 * (cov8 + cov8.T),
+        covariance_identifiable=cov[:7, :7],
+        residual_rms={"pixel_px": float(np.sqrt(np.mean((R * sig) ** 2)))},
+        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
+        converged=bool(sol.converged and np.all(np.isfinite(g))), message=sol.message,
+        nfev=sol.nfev, identifiability=report,
+        extras={"walls": walls.copy(), "wall_covariance": cov[8:, 8:],
+                "wall_names": lik.plan.param_names, "wall_index": sol.wall_index,
+                "azimuths": sol.t, "point_covariance": _point_covariances(lik, sol) * scale,
+                "map": sol, "noise": {"sigma_px": sig, "kappa": None}, "theta": theta,
+                "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
+                "floor_plan": lik.plan})
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(f"floor-plan calibration did not converge: {sol.message}",
+                               result=result)
+    return result
+
+
+def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
+                   max_iter=200, raise_on_failure=True):
+    """MAP start for the collapsed sampler (internal).
+
+    Returns
+    -------
+    psi_map : ndarray, shape (7 + 2W [+ 1],)
+        ``(theta, walls flattened[, log sigma_px])``.
+    cov_psi : ndarray, same square shape
+        Laplace covariance (phi marginalised; ``log sigma_px`` given variance
+        ``1 / (2N)``, uncorrelated).
+    q_map : ndarray, shape (N, 1)
+        Point azimuths at the MAP, rad.
+    result : CalibrationResult
+        ``result.extras["likelihood"]`` is the :class:`PlanLikelihood` to sample,
+        with its candidate walls and reference noise set at the MAP.
+    """
+    lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
+                           max_iter=max_iter)
+    res = _make_result(lik, sol, absolute_sigma, raise_on_failure)
+    res.extras["likelihood"] = lik
+    keep = np.r_[0:7, 8:len(sol.g)]
+    psi = sol.g[keep]
+    cov = sol.cov[np.ix_(keep, keep)]
+    if lik.infer_px:
+        psi = np.append(psi, np.log(sol.sigma_px))
+        c = np.zeros((len(psi), len(psi)))
+        c[:-1, :-1] = cov
+        c[-1, -1] = 1.0 / (2 * lik.n)
+        cov = c
+    return psi, cov, sol.t[:, None], res

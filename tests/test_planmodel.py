@@ -1,0 +1,218 @@
+"""The floor-plan likelihood and its least squares."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import bayescal as bc
+from bayescal.floorplan import FloorPlan, corner_azimuths, wrap_angle
+from bayescal.plan_lsq import plan_map_start
+from bayescal.planmodel import PlanLikelihood
+
+
+def _room(range_mm=1000.0, sigma_px=0.5, n_points=580, rng=0):
+    ds = bc.simulate_room(range_mm=range_mm, sigma_px=sigma_px, n_points=n_points, rng=rng)
+    true_plan = FloorPlan(ds.walls, distance_sd=0.05 * range_mm, angle_sd=0.02)
+    return ds, true_plan
+
+
+def _psi(ds, plan, extra=()):
+    return np.concatenate([ds.params.to_identifiable(), plan.param_nominal, extra])
+
+
+def _moved(plan, rng, rel=0.04, ang=0.04):
+    """The plan as a user might measure it: every wall off by a few sds' worth."""
+    d = plan.distances * (1 + rel * rng.choice([-1, 1], plan.n_walls))
+    a = plan.angles + ang * rng.choice([-1, 1], plan.n_walls)
+    return FloorPlan.from_lines(d, a, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
+
+
+def test_residual_jacobians(rng, numdiff):
+    ds, plan = _room(n_points=40)
+    lik = PlanLikelihood(ds.pixels, plan, sigma_px=0.5)
+    theta, walls = ds.params.to_identifiable(), plan.param_nominal.reshape(-1, 2)
+    t = lik._start(theta[None])[0] + rng.normal(0, 0.01, lik.n)
+    k = lik.hard_wall_index(walls, t)
+    R, Jth, Jw, Jt = lik.residuals(theta, walls, t, k, 0.5, jacobian=True)
+    i = np.arange(lik.n)
+    num_t = np.stack([numdiff(lambda x, j=j: lik.residuals(theta, walls, np.where(i == j, x[0], t),
+                                                           k, 0.5)[j], [t[j]], 1e-7)[:, 0]
+                      for j in range(lik.n)])
+    np.testing.assert_allclose(Jt, num_t, rtol=1e-5, atol=1e-6)
+    num_th = numdiff(lambda x: lik.residuals(x, walls, t, k, 0.5), theta,
+                     1e-6 * np.maximum(1, np.abs(theta)))
+    np.testing.assert_allclose(Jth, num_th, rtol=1e-5, atol=1e-5)
+    for j in (0, 5):                              # points on two different walls
+        def f(x, j=j):
+            w = walls.copy()
+            w[k[j]] = x
+            return lik.residuals(theta, w, t, k, 0.5)[j]
+        np.testing.assert_allclose(Jw[j], numdiff(f, walls[k[j]], [1e-4, 1e-7]),
+                                   rtol=1e-5, atol=1e-6)
+    # the sampler's elementwise hot path agrees with the general residuals
+    d, a = walls[k, 0], walls[k, 1]
+    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], a[None])
+    np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * 0.5 + ds.pixels, rtol=1e-12)
+    np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * 0.5, rtol=1e-10)
+
+
+def test_corner_assignment_with_a_perturbed_plan(rng):
+    """Noise-free pixels of the true room, candidate walls picked from a wrong plan:
+    at the true walls every point lands on its true wall, including points whose pixel
+    azimuth lies between the plan's corner and the true one."""
+    ds, true_plan = _room(sigma_px=0.0)
+    rough = _moved(true_plan, rng)
+    lik = PlanLikelihood(ds.pixels, rough, sigma_px=0.5)
+    psi = _psi(ds, true_plan)
+    az = np.arctan2(ds.points[:, 1], ds.points[:, 0])
+    true_corner = true_plan.corner_azimuths()
+    rough_corner = rough.corner_azimuths()
+    between = np.zeros(lik.n, bool)
+    for j in range(rough.n_walls):
+        lo, hi = sorted([0.0, wrap_angle(rough_corner[j] - true_corner[j])])
+        between |= (wrap_angle(az - true_corner[j]) > lo) & (wrap_angle(az - true_corner[j]) < hi)
+    assert between.sum() >= 10                     # the test does exercise the corners
+    _, q, C = lik.laplace(psi)
+    np.testing.assert_allclose(q[:, 0], az, atol=1e-9)
+    np.testing.assert_allclose(lik.points_3d(psi, q), ds.points, atol=1e-6)
+    true_wall = np.argmin(np.abs(np.einsum("nk,k->nk", ds.points[:, :2] @ np.stack(
+        [np.cos(true_plan.angles), np.sin(true_plan.angles)]), 1 / true_plan.distances) - 1),
+        axis=1)
+    np.testing.assert_array_equal(lik.wall_index(psi, q), true_wall)
+    assert C.shape == (lik.n, 1, 1) and np.all(C > 0)
+
+
+@pytest.mark.parametrize("infer", [False, True])
+def test_laplace_matches_numerical_integration(rng, infer):
+    """Per point, the truncated Laplace pieces against a 1-D quadrature of the exact
+    integrand (likelihood x Jeffreys prior), at walls where corners have moved."""
+    ds, true_plan = _room(n_points=580, rng=1)
+    rough = _moved(true_plan, rng, rel=0.02, ang=0.02)
+    lik = PlanLikelihood(ds.pixels, rough, sigma_px=None if infer else 0.5)
+    corner = rough.corner_azimuths()[lik.corner]
+    t_pix = lik._start(ds.params.to_identifiable()[None])[0]
+    near = np.argsort(np.abs(wrap_angle(t_pix - corner)))[:25]
+    pick = np.concatenate([near, rng.choice(lik.n, 15, replace=False)])
+    lik = PlanLikelihood(ds.pixels[pick], rough, sigma_px=None if infer else 0.5)
+    extra = [np.log(0.6)] if infer else []
+    if infer:
+        lik.set_reference_noise(sigma_px=0.55)
+    psi = np.concatenate([ds.params.to_identifiable(), true_plan.param_nominal, extra])
+    per_point, q, _ = lik.laplace_per_point(psi, n_iter=3)
+    sig = 0.6 if infer else 0.5
+    grid = q[:, 0][:, None] + np.linspace(-0.15, 0.15, 60001)[None, :]     # (n, G)
+    lp = lik.point_log_density(psi, grid.T[..., None]).T                    # (n, G)
+    m = lp.max(axis=1, keepdims=True)
+    brute = (m[:, 0] + np.log(np.trapezoid(np.exp(lp - m), grid, axis=1))
+             - 2 * np.log(sig) - np.log(2 * np.pi))
+    # the integrand is a near-Gaussian bump (sd ~0.01 rad): the Laplace error is tiny
+    np.testing.assert_allclose(per_point, brute, atol=2e-3)
+
+
+def test_laplace_is_vectorized_over_walkers(rng):
+    ds, plan = _room(n_points=100)
+    lik = PlanLikelihood(ds.pixels, plan, sigma_px=None)
+    psi0 = _psi(ds, plan, [np.log(0.5)])
+    psi = psi0 + 1e-3 * rng.standard_normal((3, 4, len(psi0))) * np.abs(psi0).clip(1)
+    ll, q, C = lik.laplace(psi)
+    assert ll.shape == (3, 4) and q.shape == (3, 4, 100, 1) and C.shape == (3, 4, 100, 1, 1)
+    one, q1, _ = lik.laplace(psi[1, 2])
+    assert one == pytest.approx(ll[1, 2], rel=1e-12)
+    np.testing.assert_allclose(q1, q[1, 2], rtol=1e-12)
+    assert lik.extra_names[-1] == "sigma_px" and lik.extra_names[0] == "d_0"
+    assert lik.points_3d(psi, q).shape == (3, 4, 100, 3)
+    assert np.all(lik.point_log_density(psi, q) > -np.inf)
+
+
+def test_log_prior_extra():
+    ds, plan = _room(n_points=20)
+    lik = PlanLikelihood(ds.pixels, plan, sigma_px=None)
+    e = np.append(plan.param_nominal, np.log(0.5))
+    lp0 = lik.log_prior_extra(e)
+    expect = np.sum(stats.norm(plan.param_nominal, plan.param_sd).logpdf(plan.param_nominal))
+    assert lp0 == pytest.approx(expect)
+    e2 = e.copy()
+    e2[0] += plan.param_sd[0]
+    assert lik.log_prior_extra(e2) == pytest.approx(lp0 - 0.5)
+    e2[-1] = np.log(50.0)                          # outside the noise bounds
+    assert lik.log_prior_extra(np.stack([e, e2])).tolist() == [lp0, -np.inf]
+    e3 = e.copy()
+    e3[2] = -1.0                                   # negative wall distance
+    assert lik.log_prior_extra(e3) == -np.inf
+
+
+@pytest.mark.parametrize("range_mm", [1000.0, 5000.0])
+def test_map_recovers_truth_on_noise_free_data(range_mm):
+    ds, plan = _room(range_mm, sigma_px=0.0)
+    init = ds.params.replace(u0=406, v0=295, h=185, beta=1.0, alpha_u=52, alpha_v=-58, xi=1.03)
+    res = bc.calibrate_simultaneous(ds.pixels, plan, sigma_px=0.5, init=init)
+    assert res.converged
+    np.testing.assert_allclose(res.params.to_identifiable(), ds.params.to_identifiable(),
+                               rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(res.points, ds.points, atol=1e-6 * range_mm)
+    np.testing.assert_allclose(res.extras["walls"][:, 0], plan.distances, rtol=1e-9)
+    W = plan.n_walls
+    assert res.extras["wall_covariance"].shape == (2 * W, 2 * W)
+    assert res.covariance.shape == (8, 8)
+    assert res.extras["point_covariance"].shape == (580, 3, 3)
+    # the Laplace covariance cannot exceed the prior: the data only add information
+    assert np.all(np.diag(res.extras["wall_covariance"]) < plan.param_sd**2)
+
+
+def test_map_start_for_the_sampler():
+    ds, plan = _room(sigma_px=0.5, rng=2)
+    psi, cov, q, res = plan_map_start(ds.pixels, ds.floor_plan, sigma_px=None)
+    lik = res.extras["likelihood"]
+    W = plan.n_walls
+    assert psi.shape == (7 + 2 * W + 1,) and cov.shape == (len(psi), len(psi))
+    assert q.shape == (580, 1)
+    assert np.exp(psi[-1]) == pytest.approx(0.5, rel=0.1)     # 580 dof: sd ~3 %
+    np.linalg.cholesky(cov)
+    ll, q2, _ = lik.laplace(psi)
+    assert np.isfinite(ll)
+    # the conditional modes are the MAP's azimuths, except where a pixel's best fit is
+    # the kink at a corner (the MAP sits on it, each piece's own mode lies beyond it)
+    corner = corner_azimuths(psi[7:-1:2], psi[8:-1:2])[lik.corner]
+    away = np.abs(wrap_angle(q[:, 0] - corner)) > 1e-3
+    assert away.mean() > 0.95
+    np.testing.assert_allclose(q2[away], q[away], atol=1e-6)
+
+
+def test_dispatch_errors():
+    ds, plan = _room(n_points=30)
+    with pytest.raises(TypeError, match="sigma_scene and estimate_points do not apply"):
+        bc.calibrate_simultaneous(ds.pixels, plan, sigma_px=0.5, sigma_scene=1.0)
+    with pytest.raises(TypeError, match="missing required keyword argument 'sigma_scene'"):
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.5)
+    with pytest.raises(TypeError, match="plan must be a FloorPlan"):
+        PlanLikelihood(ds.pixels, ds.walls, sigma_px=0.5)
+
+
+def _refit(truth, plan, rng, range_mm):
+    """One replication: fresh pixel noise, a fresh rough plan, prior centres drawn."""
+    ds = bc.simulate_room(truth, range_mm=range_mm, sigma_px=0.5, rng=rng)
+    d = plan.distances + plan.distance_sd * rng.standard_normal(plan.n_walls)
+    a = plan.angles + plan.angle_sd * rng.standard_normal(plan.n_walls)
+    rough = FloorPlan.from_lines(d, a, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
+    base = bc.Prior()
+    prior = {n: stats.norm(truth.as_dict()[n] + s * rng.standard_normal(), s)
+             for n, s in zip(bc.PARAM_NAMES, base.std(), strict=True)}
+    res = bc.calibrate_simultaneous(ds.pixels, rough, sigma_px=0.5, prior=prior)
+    return res.params.to_identifiable(), res.covariance_identifiable
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("range_mm", [1000.0, 5000.0])
+def test_laplace_covariance_matches_refit_spread(range_mm):
+    """Spread of 100 MAPs (pixel noise, wall errors and prior centres redrawn) against
+    the mean Laplace sd, per identifiable parameter. With M = 100 the sample sd has a
+    relative sd of ~1/sqrt(2M) = 7 %; the band +-25 % is 3.5 of those (two-sided
+    false-failure rate ~5e-4 per parameter, ~3e-3 for the 7)."""
+    rng = np.random.default_rng(11)
+    truth = bc.SensorParams.paper()
+    plan = FloorPlan(bc.room_walls(range_mm), distance_sd=0.05 * range_mm, angle_sd=0.02)
+    fits = [_refit(truth, plan, rng, range_mm) for _ in range(100)]
+    est = np.array([f[0] for f in fits])
+    sd_laplace = np.sqrt(np.mean([np.diag(f[1]) for f in fits], axis=0))
+    ratio = est.std(axis=0, ddof=1) / sd_laplace
+    assert np.all(np.abs(ratio - 1) < 0.25), ratio
