@@ -195,11 +195,20 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
             # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
             # freedom per point: two pixel rows, one azimuth); maximum at mean S_i
             sig = float(sig * np.sqrt(np.sum(sol.ne["R"] ** 2) / lik.n))
-    if lik.infer_px:
+    for _ in range(3):
+        # re-pick each point's candidate walls around the MAP's corners (the plan's may be
+        # far off at shallow corners) and re-solve if any point changed its pair
+        before = lik.wall_pair.copy()
+        lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
+                   g[8:].reshape(-1, 2))
+        if lik.infer_px:
+            lik.set_reference_noise(sigma_px=sig)
+        if np.array_equal(before, lik.wall_pair) and not lik.infer_px:
+            break
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
-        lik.set_reference_noise(sigma_px=sig)
-    # re-pick candidate walls at the MAP sensor (for the sampler's likelihood)
-    lik.assign(SensorParams.from_array(from_identifiable(sol.g[:7], sol.g[7])))
+        g, t = sol.g, sol.t
+        if np.array_equal(before, lik.wall_pair):
+            break
     return lik, prior, sol
 
 

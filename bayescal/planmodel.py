@@ -94,10 +94,16 @@ class PlanLikelihood:
         self._prior_mu = plan.param_nominal
         self._prior_sd = plan.param_sd
 
-    def assign(self, params):
-        """(Re)choose each point's candidate walls from its pixel azimuth under ``params``."""
+    def assign(self, params, walls=None):
+        """(Re)choose each point's candidate walls from its pixel azimuth under ``params``.
+
+        ``walls`` (W, 2) places the corners (default: the plan's); the least
+        squares re-assigns at its MAP, where the corners are known far better
+        than from the plan.
+        """
         az = pixel_azimuth(params, self.pixels)
-        corners = self.plan.corner_azimuths()
+        corners = (self.plan.corner_azimuths() if walls is None
+                   else corner_azimuths(walls[:, 0], walls[:, 1]))
         j = np.argmin(np.abs(wrap_angle(az[:, None] - corners[None, :])), axis=1)
         self.corner = j
         self.wall_pair = np.stack([j, (j + 1) % self.n_walls], axis=1)

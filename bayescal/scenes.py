@@ -360,7 +360,15 @@ def _rough_plan(walls, approx_error, angle_sd, rng, rel_eps=None):
     """The room's plan measured roughly (see :class:`Dataset`), a FloorPlan."""
     true = FloorPlan(walls, distance_sd=1.0, angle_sd=1.0)
     rel = max(approx_error, 1e-3)
-    eps = rng.normal(0.0, rel, len(walls)) if rel_eps is None else rel_eps
-    d = true.distances * (1.0 + eps)
-    a = true.angles + rng.normal(0.0, angle_sd, len(walls))
-    return FloorPlan.from_lines(d, a, distance_sd=rel * true.distances, angle_sd=angle_sd)
+    # at a shallow corner a few % on the distances can move the corner past a whole wall;
+    # such a draw is no plan anyone would draw: redraw it (None if it keeps happening)
+    for _ in range(100):
+        eps = rng.normal(0.0, rel, len(walls)) if rel_eps is None else rel_eps
+        d = true.distances * (1.0 + eps)
+        a = true.angles + rng.normal(0.0, angle_sd, len(walls))
+        try:
+            return FloorPlan.from_lines(d, a, distance_sd=rel * true.distances,
+                                        angle_sd=angle_sd)
+        except ValueError:
+            continue
+    return None

@@ -191,9 +191,15 @@ def test_dispatch_errors():
 def _refit(truth, plan, rng, range_mm):
     """One replication: fresh pixel noise, a fresh rough plan, prior centres drawn."""
     ds = bc.simulate_room(truth, range_mm=range_mm, sigma_px=0.5, rng=rng)
-    d = plan.distances + plan.distance_sd * rng.standard_normal(plan.n_walls)
-    a = plan.angles + plan.angle_sd * rng.standard_normal(plan.n_walls)
-    rough = FloorPlan.from_lines(d, a, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
+    while True:                   # a draw whose corners cross a wall is no plan: redraw
+        d = plan.distances + plan.distance_sd * rng.standard_normal(plan.n_walls)
+        a = plan.angles + plan.angle_sd * rng.standard_normal(plan.n_walls)
+        try:
+            rough = FloorPlan.from_lines(d, a, distance_sd=plan.distance_sd,
+                                         angle_sd=plan.angle_sd)
+            break
+        except ValueError:
+            continue
     base = bc.Prior()
     prior = {n: stats.norm(truth.as_dict()[n] + s * rng.standard_normal(), s)
              for n, s in zip(bc.PARAM_NAMES, base.std(), strict=True)}
