@@ -107,7 +107,7 @@ def test_unconverged_chain_raises_with_tau():
 
 def test_unconverged_chain_warns_and_progress_bar_runs(capsys):
     ds = _room(60)
-    with pytest.warns(bc.NotConvergedWarning, match="fewer than 50 x tau"):
+    with pytest.warns(bc.NotConvergedWarning, match="need more than 50 x tau"):
         post = _sample(ds, max_steps=30, n_tune=20, rng=0, progress=True)
     assert not post.converged
     assert "NOT CONVERGED" in post.summary_text()
