@@ -16,6 +16,7 @@ import numpy as np
 from scipy import stats
 
 from ._validation import as_pixels, as_points, resolve_rng
+from .diagnostics import ChainDiagnostics
 from .parameters import PARAM_NAMES, SensorParams, to_identifiable
 from .priors import Prior
 
@@ -96,7 +97,8 @@ class Posterior:
                  approx_points, sigma_px, sigma_scene, prior, tau, ess, n_steps, burn,
                  n_walkers, converged, acceptance, imh_acceptance, map_result=None,
                  laplace_cov8=None, laplace_cov7=None, map_params=None, map_points=None,
-                 map_point_covariance=None):
+                 map_point_covariance=None, diagnostics=None):
+        self.diagnostics = diagnostics      # ChainDiagnostics (tau, ESS, rule) or None
         self.param_samples = np.asarray(param_samples, float)
         self.point_samples = np.asarray(point_samples, float)
         self.noise_samples = np.asarray(noise_samples, float).reshape(len(self.param_samples), -1)
@@ -302,7 +304,7 @@ class Posterior:
         """
         from .laser import cone_point_theta, triangulate_theta
         from .model import LaserLikelihood
-        from .sampling import _draw_points
+        from .model import draw_points as _draw_points
 
         rng = resolve_rng(rng)
         pixels = as_pixels(pixels)
@@ -386,7 +388,8 @@ class Posterior:
                 "noise_names": list(self.noise_names), "sigma_px": self.sigma_px,
                 "prior": prior, "n_steps": self.n_steps, "burn": self.burn,
                 "n_walkers": self.n_walkers, "converged": self.converged,
-                "acceptance": self.acceptance, "imh_acceptance": self.imh_acceptance}
+                "acceptance": self.acceptance, "imh_acceptance": self.imh_acceptance,
+                "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict()}
         arrays = {k: getattr(self, k) for k in _ARRAYS}
         if self.sigma_scene is not None:
             arrays["sigma_scene"] = np.asarray(self.sigma_scene, float)
@@ -431,5 +434,7 @@ def load_posterior(path):
         acceptance=meta["acceptance"], imh_acceptance=meta["imh_acceptance"],
         laplace_cov8=arrays["laplace_cov8"], laplace_cov7=arrays["laplace_cov7"],
         map_params=arrays["map_params"], map_points=arrays["map_points"],
-        map_point_covariance=arrays["map_point_covariance"])
+        map_point_covariance=arrays["map_point_covariance"],
+        diagnostics=None if meta.get("diagnostics") is None else
+        ChainDiagnostics.from_dict(meta["diagnostics"]))
 

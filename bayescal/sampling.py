@@ -1,25 +1,29 @@
 """Posterior sampling: a collapsed emcee sampler over the identifiable parameters.
 
-The joint posterior over the 8 parameters and the N laser points has
-``7 + 2N`` free dimensions (``phi`` is not seen by the data); emcee does not mix
-there (DESIGN fact 5). The points are independent given the parameters, so:
+The joint posterior over the 8 parameters and the N laser points has ``7 + k N``
+free dimensions (``phi`` is not seen by the data); emcee does not mix there
+(``docs/bayes.md`` section 3). The points are independent given the globals
+``psi = (theta, extras)``, so :func:`sample_collapsed` samples ``psi`` with every
+point integrated out by a Laplace step, then draws the points. Its steps
+(:mod:`bayescal.sampler_steps`):
 
-1. **MAP**: :func:`bayescal.calibrate_simultaneous` (same likelihood, same priors)
-   gives the start and the Laplace covariance.
-2. **Collapsed chain**: emcee samples ``psi = (theta, [log sigma_px], [log kappa])``
-   under ``log p(theta) + sum_i log int p(data_i | theta, q_i) dq_i``, each
-   point's integral by a Gauss-Newton/Laplace step vectorized over
-   walkers x points (:meth:`bayescal.model.LaserLikelihood.laplace`).
-3. **Convergence**: emcee's integrated autocorrelation time ``tau``; the
-   chain runs in chunks until its post-burn-in length exceeds ``50 tau`` for
-   every coordinate and the effective sample size reaches ``min_ess``, or
-   ``max_steps`` is hit (then a :class:`NotConvergedWarning` or, with
-   ``on_unconverged="raise"``, a :class:`NotConvergedError` carrying ``tau``).
-4. **phi and the points**: for each kept sample, ``phi`` is drawn from its
-   exact conditional (quadrature), and each point from its Laplace Gaussian,
-   then corrected by independence Metropolis-Hastings steps against the exact
-   conditional density (so a non-Gaussian conditional is still sampled
-   correctly).
+1. **MAP start** (:func:`sample_posterior` only): :func:`bayescal.calibrate_simultaneous`
+   gives ``psi_map``, its Laplace covariance and the points ``q_map``;
+2. **proposal fit**: adaptive importance sampling fits a Student-t to the collapsed
+   posterior (sampling coordinates, :func:`~bayescal.sampler_steps.to_sampling`);
+3. **walker placement**: the walkers start from the fit's weighted draws;
+4. **production run**: emcee with the fitted independence proposal (80 %) and
+   differential evolution (20 %), in chunks until the kept chain is longer than
+   ``tau_factor`` autocorrelation times and the honest ESS (ensemble-mean based,
+   :func:`bayescal.diagnostics.ensemble_ess`) reaches ``min_ess``;
+5. **draws**: ``phi`` from its exact conditional, each point from its Laplace
+   Gaussian corrected by independence Metropolis-Hastings
+   (:func:`bayescal.model.draw_points`);
+6. **assembly**: a :class:`~bayescal.posterior.Posterior` carrying a
+   :class:`~bayescal.diagnostics.ChainDiagnostics`.
+
+Any likelihood providing ``n``, ``extra_names``, ``log_prior_extra``, ``laplace``,
+``point_log_density`` and ``points_3d`` can be sampled by :func:`sample_collapsed`.
 """
 
 from __future__ import annotations
@@ -29,17 +33,32 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .model import NOISE_BOUNDS, LaserLikelihood
+from .diagnostics import ChainDiagnostics, integrated_time
+from .model import NOISE_BOUNDS, LaserLikelihood, draw_points
 from .moves import IndependenceMove
 from .parameters import from_identifiable
 from .priors import Prior
+from .sampler_steps import (
+    CollapsedTarget,
+    from_sampling,
+    ring_scale,
+    run_until_converged,
+    sampling_jacobian,
+    seeded_sampler,
+    to_sampling,
+    tune_proposal,
+)
 
-__all__ = ["sample_posterior", "sample_joint", "NotConvergedWarning", "NotConvergedError",
-           "NoiseAtBoundWarning",
-           "default_moves", "NOISE_BOUNDS"]
+__all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
+           "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
+           "ring_scale", "to_sampling", "from_sampling"]
+
+#: share of the independence proposal in the production run (the rest: DEMove)
+IMH_WEIGHT = 0.8
+
 
 class NotConvergedWarning(UserWarning):
-    """The chain is shorter than 50 autocorrelation times (results may be biased)."""
+    """The chain did not meet its convergence rule (results may be biased)."""
 
 
 class NoiseAtBoundWarning(UserWarning):
@@ -59,188 +78,112 @@ class NotConvergedError(RuntimeError):
 def default_moves(mean=None, cov=None):
     """emcee moves used by default.
 
-    With a proposal ``mean`` and ``cov`` (from the Laplace approximation or a
-    tuning run): :class:`~bayescal.moves.IndependenceMove` (70 %) mixed with
-    :class:`emcee.moves.DEMove` (30 %). Without: DEMove (80 %) and StretchMove
-    (20 %). ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples
-    the wrong distribution (DESIGN fact 6). Each move here is tested on N(0, I).
+    With a proposal ``mean`` and ``cov`` (fitted by adaptive importance sampling):
+    :class:`~bayescal.moves.IndependenceMove` (80 %, walkers move independently of
+    each other) mixed with :class:`emcee.moves.DEMove` (20 %, for robustness where
+    the proposal misses). Without: DEMove (80 %) and StretchMove (20 %).
+    ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
+    distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
     """
     import emcee
 
     if mean is None:
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    return [(IndependenceMove(mean, cov), 0.7), (emcee.moves.DEMove(), 0.3)]
+    return [(IndependenceMove(mean, cov, scale=1.1), IMH_WEIGHT),
+            (emcee.moves.DEMove(), 1.0 - IMH_WEIGHT)]
 
 
-def ring_scale(theta):
-    """``sin(beta) / (xi - cos(beta))``: the laser ring's asymptotic radius per unit gamma.
-
-    A laser point far away images at ``gamma * sin(beta) / (xi - cos(beta))`` px from
-    the principal point; at large range the data pin this radius, not gamma, xi and
-    beta one by one, so the sampler works with ``R_u = gamma_u * ring_scale`` and
-    ``R_v = gamma_v * ring_scale`` in place of ``gamma_u``, ``gamma_v``.
-    """
-    xi, beta = theta[..., 0], theta[..., 6]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(xi - np.cos(beta) > 0, np.sin(beta) / (xi - np.cos(beta)), np.nan)
+def _moves_text(moves):
+    if moves is None:
+        return "default"
+    return ", ".join(f"{type(m).__name__} {w:.0%}" for m, w in moves)
 
 
-def to_sampling(psi):
-    """Sampling coordinates: psi with (gamma_u, gamma_v) replaced by the ring radii."""
-    s = np.array(psi, dtype=float)
-    k = ring_scale(s)
-    s[..., 1] *= k
-    s[..., 2] *= k
-    return s
+def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
+    """Walker placement and proposal tuning (steps 2-3), in sampling coordinates."""
+    p0 = rng.multivariate_normal(s_map, cov_s, size=n_walkers)
+    lp0 = target(p0)
+    for _ in range(100):
+        bad = ~np.isfinite(lp0)
+        if not bad.any():
+            break
+        p0[bad] = rng.multivariate_normal(s_map, cov_s * 0.01, size=int(bad.sum()))
+        lp0[bad] = target(p0[bad])
+    else:
+        raise RuntimeError("could not place the walkers: the MAP start is outside the support")
+    if n_tune <= 0:
+        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": []}
+    return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves)
 
 
-def from_sampling(s):
-    """Inverse of :func:`to_sampling`."""
-    psi = np.array(s, dtype=float)
-    k = ring_scale(psi)
-    psi[..., 1] /= k
-    psi[..., 2] /= k
-    return psi
+def _thin(chain, burn, n_samples):
+    """``n_samples`` states thinned evenly from the kept chain (steps, walkers, d)."""
+    flat = chain[burn:].reshape(-1, chain.shape[-1])
+    if len(flat) == 0:
+        flat = chain[-1]
+    idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
+    return flat[idx]
 
 
-def _sampling_jacobian(psi, eps=1e-7):
-    """d to_sampling / d psi by central differences, (ndim, ndim)."""
-    psi = np.asarray(psi, float)
-    d = len(psi)
-    J = np.empty((d, d))
-    for k in range(d):
-        h = eps * max(1.0, abs(psi[k]))
-        e = np.zeros(d)
-        e[k] = h
-        J[:, k] = (to_sampling(psi + e) - to_sampling(psi - e)) / (2 * h)
-    return J
+def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
+                     min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
+                     moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None):
+    """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
-
-class _CollapsedTarget:
-    """Vectorized log posterior with the points integrated out, in sampling coordinates.
-
-    Called with sampling coordinates (:func:`to_sampling`); the density includes the
-    Jacobian ``|d psi / d s| = ring_scale^-2`` of the change of variables.
-    """
-
-    def __init__(self, lik, prior, q_start, n_iter):
-        self.lik, self.prior, self.q_start, self.n_iter = lik, prior, q_start, n_iter
-
-    def log_prior(self, psi):
-        return self.prior.logpdf_theta(psi[..., :7]) + self.lik.log_prior_extra(psi[..., 7:])
-
-    def __call__(self, s):
-        s = np.atleast_2d(s)
-        psi = from_sampling(s)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            lp = self.log_prior(psi) - 2.0 * np.log(ring_scale(psi))
-        out = np.full(len(psi), -np.inf)
-        ok = np.isfinite(lp)
-        if np.any(ok):
-            ll, _, _ = self.lik.laplace(psi[ok], self.q_start, n_iter=self.n_iter)
-            out[ok] = lp[ok] + ll
-        return np.where(np.isfinite(out), out, -np.inf)
-
-
-def _seeded_sampler(nwalkers, ndim, fn, rng, moves):
-    import emcee
-
-    sampler = emcee.EnsembleSampler(nwalkers, ndim, fn, vectorize=True, moves=moves)
-    # emcee draws from a legacy RandomState: seed it from our Generator
-    sampler.random_state = np.random.RandomState(
-        np.random.MT19937(rng.integers(2**32))).get_state()
-    return sampler
-
-
-def _tau(chain):
-    """Integrated autocorrelation time per coordinate, chain (steps, walkers, dim)."""
-    import emcee
-
-    return emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
-
-
-def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, progress,
-                        burn_factor=5.0):
-    """Run emcee in chunks until ``len > tau_factor * tau`` and ESS >= ``min_ess``.
+    Parameters
+    ----------
+    lik : likelihood
+        Any object of the collapsed-sampler protocol (``n``, ``extra_names``,
+        ``log_prior_extra``, ``laplace``, ``point_log_density``, ``points_3d``).
+    prior : Prior
+        Prior of the paper parameters (theta's prior with phi integrated out).
+    psi_map : array_like, shape (d,)
+        Start: theta (7,) then the extra globals, as ``lik.laplace`` takes them.
+    cov_psi_map : array_like, shape (d, d)
+        Laplace covariance at ``psi_map`` (a rough one will do: it is refitted).
+    q_map : array_like, shape (N, k)
+        Latent point coordinates at the MAP (start of the Laplace steps).
+    rng, n_walkers, min_ess, tau_factor, max_steps, n_samples, moves, progress,
+    n_point_mh, n_iter :
+        As in :func:`sample_posterior`.
+    n_tune : int, optional
+        Draws per round of the proposal fit (default ``100 * d``).
 
     Returns
     -------
     dict
-        ``tau``, ``burn``, ``n_steps``, ``converged``, ``ess``.
+        ``psi`` (S, d) samples, ``q`` (S, N, k) point draws, ``diagnostics``
+        (:class:`~bayescal.diagnostics.ChainDiagnostics`), ``imh_acceptance``.
     """
-    state = p0
-    total = 0
-    info = {}
-    pbar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        pbar = tqdm(total=max_steps, desc="emcee (collapsed)", unit="step", leave=False)
-    try:
-        while total < max_steps:
-            n = min(chunk, max_steps - total)
-            state = sampler.run_mcmc(state, n, progress=False)
-            total += n
-            if pbar is not None:
-                pbar.update(n)
-            chain = sampler.get_chain()
-            tau = _tau(chain[total // 5:])          # drop the first fifth as a provisional burn
-            # a coordinate with no movement in the window has an undefined tau: not converged
-            tau = np.where(np.isfinite(tau), tau, np.inf)
-            burn = int(min(np.ceil(burn_factor * np.max(tau)), total // 2))
-            kept = total - burn
-            ess = sampler.nwalkers * kept / tau
-            converged = kept > tau_factor * np.max(tau)
-            info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(converged),
-                    "ess": ess}
-            if pbar is not None:
-                pbar.set_postfix(tau=f"{np.max(tau):.1f}", ess=f"{np.min(ess):.0f}")
-            if converged and np.min(ess) >= min_ess:
-                break
-            # grow the next chunk to what the current tau says is still needed
-            need_len = max(tau_factor * np.max(tau), min_ess * np.max(tau) / sampler.nwalkers)
-            need = need_len + burn - total if np.isfinite(need_len) else chunk
-            chunk = int(np.clip(need, 50, max(chunk, 50) * 4))
-    finally:
-        if pbar is not None:
-            pbar.close()
-    return info
-
-
-def _gauss_draw(mean, L, rng):
-    """Draw from N(mean, L L^T) per point; returns the draw and its log density + const."""
-    z = rng.standard_normal(mean.shape)
-    return mean + np.einsum("...ij,...j->...i", L, z), -0.5 * np.sum(z * z, axis=-1)
-
-
-def _draw_points(lik, psi, q_start, rng, *, n_mh, n_iter, batch=256):
-    """Draw every point's scene coordinates given each psi sample (Laplace + IMH)."""
-    S = len(psi)
-    out = np.empty((S, lik.n, 2))
-    acc = []
-    for lo in range(0, S, batch):
-        p = psi[lo:lo + batch]
-        _, qm, C = lik.laplace(p, q_start, n_iter=n_iter)
-        L = np.linalg.cholesky(np.linalg.inv(C))                         # (b, N, 2, 2)
-        q, lg = _gauss_draw(qm, L, rng)
-        lp = lik.point_log_density(p, q)
-        for _ in range(n_mh):
-            q2, lg2 = _gauss_draw(qm, L, rng)
-            lp2 = lik.point_log_density(p, q2)
-            log_r = (lp2 - lg2) - (lp - lg)
-            accept = np.log(rng.random(log_r.shape)) < log_r
-            q = np.where(accept[..., None], q2, q)
-            lp = np.where(accept, lp2, lp)
-            lg = np.where(accept, lg2, lg)
-            acc.append(accept.mean())
-        out[lo:lo + batch] = q
-    return out, float(np.mean(acc)) if acc else float("nan")
+    rng = resolve_rng(rng)
+    ndim = len(psi_map)
+    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
+    n_tune = 150 if n_tune is None else int(n_tune)
+    target = CollapsedTarget(lik, prior, q_map, n_iter)
+    J = sampling_jacobian(psi_map)
+    s_map, cov_s = to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
+    fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
+    p0 = fit["state"]
+    prod_moves = default_moves(fit["mean"], fit["cov"]) if moves is None else moves
+    sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
+    info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
+                               max_steps=int(max_steps), chunk=100, progress=progress)
+    diag = ChainDiagnostics(
+        names=("xi", "R_u", "R_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
+        tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
+        n_walkers=n_walkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
+        converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
+        moves=_moves_text(prod_moves),
+        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls)})
+    psi = from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
+    return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rng=None,
                      n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
-                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=150):
+                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -264,10 +207,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
         Randomness of walkers, emcee and point draws: same seed, same chains.
     n_walkers : int, optional
         emcee walkers, at least ``2 * ndim`` for the red-blue moves (default
-        ``2 * ndim + 2``: with the tuned independence proposal the chain length,
-        not the ensemble size, limits the run, so few walkers are cheapest).
+        ``2 * ndim + 2``: the ``tau_factor`` rule fixes the chain length in
+        steps whatever the ensemble size, so few walkers are cheapest).
     min_ess : float, optional
-        Target effective sample size of every sampled coordinate.
+        Target effective sample size of every sampled coordinate, computed
+        honestly for an ensemble (:func:`bayescal.diagnostics.ensemble_ess`).
     tau_factor : float, optional
         Convergence rule: post-burn-in chain longer than ``tau_factor * tau``.
     max_steps : int, optional
@@ -278,10 +222,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     init : SensorParams, optional
         Start of the MAP search (default the prior means).
     moves : list, optional
-        emcee moves for both runs (default :func:`default_moves`: tuned
-        independence proposal mixed with differential evolution).
+        emcee moves of the production run (default :func:`default_moves`: the
+        fitted independence proposal mixed with differential evolution).
     n_tune : int, optional
-        Steps of the tuning run that sets the proposal (discarded).
+        Draws per round of the adaptive-importance-sampling fit of the proposal
+        (default ``100 * ndim``).
     progress : bool, optional
         Show a progress bar.
     on_unconverged : {"warn", "raise"}
@@ -305,7 +250,6 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     >>> post.param_samples.shape[1], post.point_samples.shape[1:]
     (8, (60, 3))
     """
-    from .posterior import Posterior
     from .simultaneous import calibrate_simultaneous
 
     if on_unconverged not in ("warn", "raise"):
@@ -314,97 +258,75 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
     ndim = 7 + len(lik.extra_names)
-    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
-    if n_walkers < 2 * ndim:
+    if n_walkers is not None and int(n_walkers) < 2 * ndim:
         raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
                          f"red-blue moves, got {n_walkers}")
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
-
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init)
-    sol = map_res.extras["map"]
-    noise = map_res.extras["noise"]
+    psi_map, cov_map, q_map = _map_start(lik, map_res)
+    run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
+                           min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
+                           n_samples=n_samples, moves=moves, progress=progress,
+                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
+    post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    _check_noise_bounds(post)
+    diag = run["diagnostics"]
+    if not diag.converged:
+        msg = (f"the chain did not converge within max_steps={max_steps}: it has "
+               f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
+               f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
+               f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
+        if on_unconverged == "raise":
+            raise NotConvergedError(msg, tau=diag.tau, posterior=post)
+        warnings.warn(msg, NotConvergedWarning, stacklevel=2)
+    return post
+
+
+def _map_start(lik, map_res):
+    """psi at the MAP (theta then inferred log noise), its covariance and the MAP points."""
+    sol, noise = map_res.extras["map"], map_res.extras["noise"]
     lik.set_reference_noise(sigma_px=noise["sigma_px"], kappa=noise["kappa"])
     psi_map = list(sol.theta)
     if lik.infer_px:
         psi_map.append(np.log(noise["sigma_px"]))
     if lik.infer_scene:
         psi_map.append(np.log(noise["kappa"]))
-    psi_map = np.array(psi_map)
-    cov0 = np.zeros((ndim, ndim))
-    cov0[:7, :7] = sol.cov_theta
+    ndim = len(psi_map)
+    cov = np.zeros((ndim, ndim))
+    cov[:7, :7] = sol.cov_theta
     for k in range(7, ndim):
-        cov0[k, k] = (1.0 / np.sqrt(lik.n)) ** 2          # ~ relative sd of a noise estimate
-    target = _CollapsedTarget(lik, prior, sol.q, n_iter)
-    J = _sampling_jacobian(psi_map)
-    psi_map, cov0 = to_sampling(psi_map), J @ cov0 @ J.T     # sampling coordinates from here
-    p0 = rng.multivariate_normal(psi_map, cov0, size=n_walkers)
-    lp0 = target(p0)
-    for _ in range(100):
-        bad = ~np.isfinite(lp0)
-        if not bad.any():
-            break
-        p0[bad] = rng.multivariate_normal(psi_map, cov0 * 0.01, size=int(bad.sum()))
-        lp0[bad] = target(p0[bad])
-    else:
-        raise RuntimeError("could not place the walkers: the MAP start is outside the support")
+        cov[k, k] = 1.0 / lik.n                 # ~ squared relative sd of a noise estimate
+    return np.array(psi_map), cov, sol.q
 
-    # tuning: two short emcee runs with an independence proposal (first from the Laplace
-    # covariance, then from the first run's draws) and DE; the last two thirds of the
-    # second run give the mean and covariance of the production run's frozen proposal
-    n_tune = int(n_tune)
-    state, mean, cov = p0, psi_map, cov0
-    prod_moves = moves
-    for scale in (1.5, 1.0):              # two tuning rounds, each refits the proposal
-        if n_tune <= 0:
-            break
-        tune = _seeded_sampler(n_walkers, ndim, target, rng,
-                               default_moves(mean, scale * cov) if moves is None else moves)
-        state = tune.run_mcmc(state, n_tune, progress=False)
-        if moves is None:
-            ch = tune.get_chain(discard=n_tune // 3).reshape(-1, ndim)
-            mean, cov = ch.mean(axis=0), np.cov(ch, rowvar=False)
-    if moves is None:
-        prod_moves = default_moves(mean, cov)
-    sampler = _seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
-    info = run_until_converged(sampler, state, min_ess=min_ess, tau_factor=tau_factor,
-                               max_steps=int(max_steps), chunk=200, progress=progress)
-    chain = sampler.get_chain()
-    flat = chain[info["burn"]:].reshape(-1, ndim)
-    if len(flat) == 0:
-        flat = chain[-1]
-    idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
-    psi = from_sampling(flat[idx])
+
+def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
+    """phi draws and the Posterior object (step 6)."""
+    from .posterior import Posterior
+
+    psi, diag = run["psi"], run["diagnostics"]
     phi = prior.sample_phi(psi[:, :7], rng=rng)
-    a = from_identifiable(psi[:, :7], phi)
-    q, imh_acc = _draw_points(lik, psi, sol.q, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
-    pts = lik.points_3d(psi, q)
-    post = Posterior(
-        param_samples=a, point_samples=pts, noise_samples=psi[:, 7:],
-        noise_names=lik.extra_names,
-        pixels=lik.pixels, approx_points=lik.approx,
+    return Posterior(
+        param_samples=from_identifiable(psi[:, :7], phi),
+        point_samples=lik.points_3d(psi, run["q"]), noise_samples=psi[:, 7:],
+        noise_names=lik.extra_names, pixels=lik.pixels, approx_points=lik.approx,
         sigma_px=sigma_px, sigma_scene=None if sigma_scene is None else
         np.broadcast_to(np.asarray(sigma_scene, float), lik.approx.shape).copy(),
-        prior=prior, map_result=map_res, tau=info["tau"], ess=info["ess"],
-        n_steps=info["n_steps"], burn=info["burn"], n_walkers=n_walkers,
-        converged=info["converged"],
-        acceptance=float(np.mean(sampler.acceptance_fraction)), imh_acceptance=imh_acc)
+        prior=prior, map_result=map_res, tau=diag.tau, ess=diag.ess,
+        n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,
+        converged=diag.converged, acceptance=diag.acceptance,
+        imh_acceptance=run["imh_acceptance"], diagnostics=diag)
+
+
+def _check_noise_bounds(post):
     for k, name in enumerate(post.noise_names):
         lo = NOISE_BOUNDS[name][0]
         if np.quantile(np.exp(post.noise_samples[:, k]), 0.05) < 2 * lo:
             warnings.warn(f"the posterior of the inferred {name} reaches its prior's lower "
                           f"bound {lo:g}: the data cannot separate the noise levels (too few "
                           f"points?); give {name if name == 'sigma_px' else 'sigma_scene'} "
-                          f"explicitly", NoiseAtBoundWarning, stacklevel=2)
-    if not info["converged"]:
-        msg = (f"the chain did not converge within max_steps={max_steps}: it has "
-               f"{info['n_steps'] - info['burn']} steps after burn-in, fewer than "
-               f"{tau_factor} x tau = {tau_factor * np.max(info['tau']):.0f}")
-        if on_unconverged == "raise":
-            raise NotConvergedError(msg, tau=info["tau"], posterior=post)
-        warnings.warn(msg, NotConvergedWarning, stacklevel=2)
-    return post
+                          f"explicitly", NoiseAtBoundWarning, stacklevel=3)
 
 
 def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rng=None,
@@ -412,7 +334,7 @@ def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rn
     """Brute-force emcee over the full joint ``(theta, q_1..q_N)`` (validation only).
 
     This is the naive sampler the collapsed one replaces: ``7 + 2N`` dimensions,
-    slow to mix (DESIGN fact 5). It exists to check the collapsed sampler on
+    slow to mix (``docs/bayes.md`` section 3). It exists to check the collapsed sampler on
     small problems and as the benchmark baseline. Noise levels must be given.
 
     Returns
@@ -450,10 +372,10 @@ def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rn
         return np.where(np.isfinite(out), out, -np.inf)
 
     p0 = center + 0.5 * sd * rng.standard_normal((n_walkers, ndim))
-    sampler = _seeded_sampler(n_walkers, ndim, logp, rng, None)
+    sampler = seeded_sampler(n_walkers, ndim, logp, rng, None)
     sampler.run_mcmc(p0, int(n_steps), progress=progress)
     chain = sampler.get_chain()
     kept = chain[len(chain) // 2:].reshape(-1, ndim)
     return {"chain": chain, "theta": kept[:, :7], "q": kept[:, 7:].reshape(-1, n, 2),
-            "tau": _tau(chain[len(chain) // 2:]),
+            "tau": integrated_time(chain[len(chain) // 2:]),
             "acceptance": float(np.mean(sampler.acceptance_fraction))}

@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy import stats
 
 import bayescal as bc
 
@@ -107,7 +108,7 @@ def test_unconverged_chain_raises_with_tau():
 
 def test_unconverged_chain_warns_and_progress_bar_runs(capsys):
     ds = _room(60)
-    with pytest.warns(bc.NotConvergedWarning, match="fewer than 50 x tau"):
+    with pytest.warns(bc.NotConvergedWarning, match="need more than 50 x tau"):
         post = _sample(ds, max_steps=30, n_tune=20, rng=0, progress=True)
     assert not post.converged
     assert "NOT CONVERGED" in post.summary_text()
@@ -162,3 +163,38 @@ def test_both_noise_levels_inferred():
                                progress=False, min_ess=400, n_samples=400,
                                on_unconverged="raise")
     _check_noise(post, ("sigma_px", "kappa"), (0.3, 0.02))
+
+
+ROOMS_FOR_ESS = {
+    "1000 mm, z unknown (fig9, 3 %)": {"range_mm": 1000, "approx_model": "fig9",
+                                       "approx_error": 0.03},
+    "5000 mm, z known (gaussian, 2 %)": {"range_mm": 5000, "approx_model": "gaussian",
+                                         "approx_error": 0.02},
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("room", list(ROOMS_FOR_ESS))
+def test_claimed_monte_carlo_error_matches_the_scatter_over_seeds(room):
+    """Is the reported ESS honest? One dataset, 10 sampler seeds: the sd of the 10 posterior
+    means of each identifiable parameter over the rms claimed Monte-Carlo error
+    sd / sqrt(ESS) follows sqrt(chi2_9 / 9) if the ESS is right. Its 95 % band is 0.55-1.45;
+    7 parameters in one test, so the asserted band is the family-wise 99.9 % one
+    (per parameter 1.4e-4 each side: 0.36-1.86; false-failure rate ~1e-3 per room). n_samples
+    is large so that the thinned samples' mean is the chain's mean."""
+    ds = bc.simulate_room(range_mm=ROOMS_FOR_ESS[room]["range_mm"], n_points=300,
+                          sigma_px=0.2, approx_error=ROOMS_FOR_ESS[room]["approx_error"],
+                          approx_model=ROOMS_FOR_ESS[room]["approx_model"], rng=21)
+    sig = np.maximum(ds.sigma_scene, 1.0)
+    means, errs = [], []
+    for seed in range(10):
+        post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.2, sigma_scene=sig,
+                                   rng=100 + seed, progress=False, min_ess=400,
+                                   n_samples=20000, n_point_mh=0, on_unconverged="raise")
+        th = post.theta_samples
+        means.append(th.mean(axis=0))
+        errs.append(th.std(axis=0) / np.sqrt(post.ess[:7]))
+    ratio = np.std(means, axis=0, ddof=1) / np.sqrt(np.mean(np.square(errs), axis=0))
+    print(room, np.round(ratio, 2))
+    lo, hi = np.sqrt(stats.chi2(9).ppf([1.4e-4, 1 - 1.4e-4]) / 9)
+    assert np.all((ratio > lo) & (ratio < hi)), ratio
