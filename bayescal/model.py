@@ -28,6 +28,7 @@ import numpy as np
 from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
 
 __all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "OUTLIER_SCALE",
            "OUTLIER_PRIOR"]
@@ -38,25 +39,8 @@ NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
 #: priors of the latent scene coordinates: see :class:`LaserLikelihood`
 POINT_PRIORS = ("jeffreys", "flat")
 
-#: default noise inflation of the outlier component (``docs/robustness.md``)
-OUTLIER_SCALE = 100.0
-
-#: default Beta(a, b) prior of the outlier fraction (mean a / (a + b) = 0.05)
-OUTLIER_PRIOR = (1.0, 19.0)
 
 _LOG2PI = np.log(2 * np.pi)
-
-
-def _inv2(C):
-    """Inverse and determinant of stacked 2x2 matrices, shape (..., 2, 2)."""
-    a, b, c, d = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
-    det = a * d - b * c
-    inv = np.empty_like(C)
-    inv[..., 0, 0] = d / det
-    inv[..., 0, 1] = -b / det
-    inv[..., 1, 0] = -c / det
-    inv[..., 1, 1] = a / det
-    return inv, det
 
 
 class LaserLikelihood:
@@ -107,7 +91,8 @@ class LaserLikelihood:
         if point_prior not in POINT_PRIORS:
             raise ValueError(f"point_prior must be one of {POINT_PRIORS}, got {point_prior!r}")
         self.point_prior = point_prior
-        self._set_outliers(outliers, outlier_scale, outlier_prior)
+        self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
+            outliers, outlier_scale, outlier_prior)
         self.pixels = as_pixels(pixels, "pixels")
         self.approx = as_points(approx_points, "approx_points")
         if self.pixels.ndim != 2 or self.approx.ndim != 2:
@@ -151,24 +136,6 @@ class LaserLikelihood:
                                              0.0).sum(axis=1)
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         self.ref_kappa = 0.05
-
-    def _set_outliers(self, outliers, scale, prior):
-        if not isinstance(outliers, (bool, np.bool_)):
-            raise TypeError(f"outliers must be True or False, got {outliers!r}")
-        self.outliers = bool(outliers)
-        self.outlier_scale = check_positive(scale, "outlier_scale")
-        if self.outlier_scale <= 1.0:
-            raise ValueError(f"outlier_scale must be > 1 (the outlier component is broader "
-                             f"than the model's noise), got {scale!r}")
-        try:
-            a, b = (float(v) for v in prior)
-        except (TypeError, ValueError):
-            raise TypeError(f"outlier_prior must be a pair (a, b) of Beta parameters, got "
-                            f"{prior!r}") from None
-        if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
-            raise ValueError(f"outlier_prior must be a pair (a, b) of positive finite Beta "
-                             f"parameters, got {prior!r}")
-        self.outlier_prior = (a, b)
 
     def set_reference_noise(self, *, sigma_px=None, kappa=None):
         """Noise levels at which the Jeffreys prior of the points is evaluated.
@@ -241,26 +208,16 @@ class LaserLikelihood:
         fraction's Beta(a, b) prior, in the sampled ``logit w``, is
         ``w^a (1 - w)^b`` (Jacobian included; normalised).
         """
-        from scipy.special import betaln, log_expit
-
         extra = np.asarray(extra, dtype=float)
         lp = np.zeros(extra.shape[:-1])
         for k, name in enumerate(self.extra_names):
             x = extra[..., k]
             if name == "outlier_frac":
-                a, b = self.outlier_prior
-                lp = lp + a * log_expit(x) + b * log_expit(-x) - betaln(a, b)
+                lp = lp + log_prior_logit_frac(x, self.outlier_prior)
                 continue
             lo, hi = np.log(NOISE_BOUNDS[name])
             lp = np.where((x > lo) & (x < hi), lp, -np.inf)
         return lp
-
-    def _log_w(self, extra):
-        """``(log w, log(1 - w))`` of the outlier fraction, shape (...) each."""
-        from scipy.special import log_expit
-
-        x = np.asarray(extra, dtype=float)[..., -1]
-        return log_expit(x), log_expit(-x)
 
     def points_3d(self, psi, q):
         """3D points (..., N, 3), mm, of the scene coordinates ``q`` (..., N, 2) under ``psi``."""
@@ -383,41 +340,6 @@ class LaserLikelihood:
         c00, c01, c11 = (p * sp + q * ss for p, q in zip(Cp, Cs, strict=True))
         return 0.5 * np.log(c00 * c11 - c01 * c01)
 
-    def _mix(self, extra, per_in, m, *, laplace):
-        """Mix each point's inlier log marginal with the outlier component's.
-
-        Parameters
-        ----------
-        extra : ndarray, shape (..., n_extra)
-        per_in : ndarray, shape (..., N)
-            Inlier log marginal (or log density) per point.
-        m : ndarray, shape (..., N)
-            Squared whitened residual norm left at the point's mode (Laplace) or
-            at the given q (exact density).
-        laplace : bool
-            True for the marginals of :meth:`laplace` (the outlier component's
-            q-integral is ``c^2`` times wider), False for exact densities at q.
-
-        Returns
-        -------
-        per_point : ndarray, shape (..., N)
-            ``log((1 - w) L_in + w L_out)``.
-        r : ndarray, shape (..., N)
-            Outlier responsibility ``w L_out / ((1 - w) L_in + w L_out)``.
-        """
-        c = self.outlier_scale
-        log_w, log_1mw = self._log_w(extra)
-        # L_out / L_in: residuals shrink by c, the n_rows normalisers and, in the
-        # Laplace case, the 2-D q-integral's volume grow by c
-        vol = 2.0 if laplace else 0.0
-        delta = 0.5 * m * (1.0 - 1.0 / c**2) + (vol - self._n_rows) * np.log(c)
-        a = log_1mw[..., None] + per_in
-        b = log_w[..., None] + per_in + delta
-        per_point = np.logaddexp(a, b)
-        with np.errstate(over="ignore"):
-            r = 1.0 / (1.0 + np.exp(a - b))
-        return per_point, r
-
     def laplace(self, psi, q0, *, n_iter=4):
         """Integrate each point's scene coordinates out by a Gauss-Newton/Laplace step.
 
@@ -503,7 +425,8 @@ class LaserLikelihood:
             per_point = (-0.5 * g["rr"] + 0.5 * g["gd"] - 0.5 * np.log(g["det"]) + _LOG2PI
                          + log_norm + self._log_point_prior(extra, sig, g["Cp"], g["Cs"]))
             if self.outliers:
-                per_point, r = self._mix(extra, per_point, g["rr"] - g["gd"], laplace=True)
+                per_point, r = mix(extra[..., -1], per_point, g["rr"] - g["gd"], self._n_rows,
+                                   self.outlier_scale, laplace=True)
         return (per_point, g["x"], g["y"]) + g["C"] + (r,)
 
     def _exact_terms(self, psi, q):
@@ -514,7 +437,8 @@ class LaserLikelihood:
             rr, Cp, Cs, _, _ = self._point_terms(theta, q[..., 0], q[..., 1], sig, w)
             per_point = -0.5 * rr + self._log_point_prior(extra, sig, Cp, Cs) + log_norm
             if self.outliers:
-                per_point, _ = self._mix(extra, per_point, rr, laplace=False)
+                per_point, _ = mix(extra[..., -1], per_point, rr, self._n_rows,
+                                   self.outlier_scale, laplace=False)
         return per_point
 
     def log_joint(self, psi, q):
