@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import check_calibration_input, check_noise_levels
 from .model import LaserLikelihood
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, mix
 from .parameters import (
@@ -118,25 +119,24 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene, prio
     >>> res.converged
     True
     """
+    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    init = _resolve_init(init, prior)
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    pixels, approx_points = check_calibration_input(pixels, approx_points,
+                                                    sigma_scene=sigma_scene,
+                                                    center=(init.u0, init.v0))
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
                           outliers=outliers and estimate_points, outlier_scale=outlier_scale,
                           outlier_prior=outlier_prior)
-    n = lik.n
-    if n < 4:
-        raise ValueError(f"need at least 4 laser points, got N={n}")
-    prior = prior if isinstance(prior, Prior) else Prior(prior)
-    init = _resolve_init(init, prior)
-    az = np.arctan2(lik.pixels[:, 1] - init.v0, lik.pixels[:, 0] - init.u0)
-    if np.abs(np.mean(np.exp(1j * az))) > 0.99:
-        raise ValueError("pixels: all laser pixels lie at (nearly) one azimuth around the "
-                         f"principal point ({init.u0:g}, {init.v0:g}); the cone and the principal "
-                         "point cannot be separated: use points spread around the laser ring")
     theta0 = to_identifiable(init.to_array())
     q0 = lik.initial_q(theta0)
     if not estimate_points:
         return _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
 
     fit = _fit_map(lik, prior, theta0, q0, max_iter)
+    if lik.n_noise:
+        check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
     return _make_result(lik, prior, fit, absolute_sigma, raise_on_failure)
 
 
@@ -251,7 +251,8 @@ def _fit_noise(lik, fit):
         x0.append(np.log(kappa))
 
     def f(e):
-        v = lik.laplace(np.concatenate([sol.theta, e, tail]), sol.q, n_iter=3)[0]
+        psi = np.concatenate([sol.theta, e, tail])
+        v = lik.laplace(psi, sol.q, n_iter=3)[0] + lik.log_prior_extra(psi[7:])
         return -v if np.isfinite(v) else 1e300
 
     e = minimize(f, np.array(x0), method="Nelder-Mead",
