@@ -9,6 +9,7 @@ See ``docs/`` for the model, conventions and the public API.
 """
 
 from .camera import backproject, project
+from .checks import DuplicateRowsWarning, NoiseCollapseError
 from .floorplan import FloorPlan
 from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .metrics import reconstruction_error, reconstruction_errors
@@ -59,4 +60,6 @@ __all__ = [
     "default_prior",
     "NotConvergedWarning",
     "NotConvergedError",
+    "DuplicateRowsWarning",
+    "NoiseCollapseError",
 ]

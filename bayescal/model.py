@@ -28,8 +28,10 @@ import numpy as np
 from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
 
-__all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "draw_points"]
+__all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "OUTLIER_SCALE",
+           "OUTLIER_PRIOR", "draw_points"]
 
 #: log-uniform prior bounds of the inferred noise levels
 NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
@@ -37,19 +39,8 @@ NOISE_BOUNDS = {"sigma_px": (1e-3, 10.0), "kappa": (1e-4, 1.0)}
 #: priors of the latent scene coordinates: see :class:`LaserLikelihood`
 POINT_PRIORS = ("jeffreys", "flat")
 
+
 _LOG2PI = np.log(2 * np.pi)
-
-
-def _inv2(C):
-    """Inverse and determinant of stacked 2x2 matrices, shape (..., 2, 2)."""
-    a, b, c, d = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
-    det = a * d - b * c
-    inv = np.empty_like(C)
-    inv[..., 0, 0] = d / det
-    inv[..., 0, 1] = -b / det
-    inv[..., 1, 0] = -c / det
-    inv[..., 1, 1] = a / det
-    return inv, det
 
 
 class LaserLikelihood:
@@ -76,6 +67,18 @@ class LaserLikelihood:
         reference prior for incidental parameters) cancels that term: the
         collapsed likelihood becomes the profile likelihood, whose score has
         zero mean. Default "jeffreys".
+    outliers : bool
+        If True, each point (its pixel and approximate point together) is an
+        inlier with probability ``1 - w`` and an outlier with probability
+        ``w``; an outlier's residuals have ``outlier_scale`` times the model's
+        noise (a heavy-tailed scale mixture, ``docs/robustness.md``). ``w`` is
+        an extra global, sampled as ``logit w`` under the name
+        ``"outlier_frac"`` (after the noise levels). Default False here (the
+        pure model); :func:`~bayescal.calibrate_simultaneous` turns it on.
+    outlier_scale : float
+        Noise inflation ``c > 1`` of the outlier component (default 100).
+    outlier_prior : tuple of float
+        ``(a, b)`` of the Beta prior of ``w`` (default (1, 19): mean 5 %).
 
     Attributes
     ----------
@@ -83,10 +86,13 @@ class LaserLikelihood:
         Number of inferred noise parameters appended to ``theta`` (0, 1 or 2).
     """
 
-    def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene, point_prior="jeffreys"):
+    def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene, point_prior="jeffreys",
+                 outliers=False, outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
         if point_prior not in POINT_PRIORS:
             raise ValueError(f"point_prior must be one of {POINT_PRIORS}, got {point_prior!r}")
         self.point_prior = point_prior
+        self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
+            outliers, outlier_scale, outlier_prior)
         self.pixels = as_pixels(pixels, "pixels")
         self.approx = as_points(approx_points, "approx_points")
         if self.pixels.ndim != 2 or self.approx.ndim != 2:
@@ -188,22 +194,28 @@ class LaserLikelihood:
         The collapsed sampler works on ``psi = (theta, extra)``; any likelihood
         it samples provides ``n``, ``extra_names``, :meth:`log_prior_extra`,
         :meth:`laplace`, :meth:`point_log_density` and :meth:`points_3d`.
-        Here the extras are ``log sigma_px`` and ``log kappa`` where inferred.
+        Here the extras are ``log sigma_px`` and ``log kappa`` where inferred,
+        then ``logit w`` (``"outlier_frac"``) with ``outliers=True``.
         """
-        return tuple(n for n, on in (("sigma_px", self.infer_px), ("kappa", self.infer_scene))
-                     if on)
+        return tuple(n for n, on in (("sigma_px", self.infer_px), ("kappa", self.infer_scene),
+                                     ("outlier_frac", self.outliers)) if on)
 
     def log_prior_extra(self, extra):
         """Log prior density of the extra globals, shape (...); ``-inf`` outside the support.
 
         Each inferred noise level has a log-uniform prior on :data:`NOISE_BOUNDS`
-        (flat in the sampled ``log`` value, up to a constant).
+        (flat in the sampled ``log`` value, up to a constant). The outlier
+        fraction's Beta(a, b) prior, in the sampled ``logit w``, is
+        ``w^a (1 - w)^b`` (Jacobian included; normalised).
         """
         extra = np.asarray(extra, dtype=float)
         lp = np.zeros(extra.shape[:-1])
         for k, name in enumerate(self.extra_names):
-            lo, hi = np.log(NOISE_BOUNDS[name])
             x = extra[..., k]
+            if name == "outlier_frac":
+                lp = lp + log_prior_logit_frac(x, self.outlier_prior)
+                continue
+            lo, hi = np.log(NOISE_BOUNDS[name])
             lp = np.where((x > lo) & (x < hi), lp, -np.inf)
         return lp
 
@@ -321,7 +333,7 @@ class LaserLikelihood:
             return 0.0
         sp = (np.asarray(sig) / self.ref_sigma_px)[..., None] ** 2
         if self.infer_scene:
-            kappa = np.exp(extra[..., -1])
+            kappa = np.exp(extra[..., int(self.infer_px)])
             ss = (kappa / self.ref_kappa)[..., None] ** 2
         else:
             ss = 1.0
@@ -333,7 +345,7 @@ class LaserLikelihood:
 
         Parameters
         ----------
-        psi : ndarray, shape (..., 7 + n_noise)
+        psi : ndarray, shape (..., 7 + n_extra)
         q0 : ndarray, shape (..., N, 2) or (N, 2)
             Starting scene coordinates.
         n_iter : int
@@ -348,53 +360,102 @@ class LaserLikelihood:
             pi(q_i | theta) dq_i`` (Laplace approximation with the Gauss-Newton
             Hessian; exact for a model linear in q); ``-inf`` outside the
             model's domain. With the Jeffreys point prior and given noise this
-            is the profile likelihood plus a constant.
+            is the profile likelihood plus a constant. With ``outliers=True``
+            each point's term is ``log((1 - w) L_in + w L_out)``.
         q : ndarray, shape (..., N, 2)
-            Conditional modes.
+            Conditional modes (both mixture components share them).
         C : ndarray, shape (..., N, 2, 2)
-            Conditional precision matrices ``J_q^T J_q`` (inverse = covariance).
+            Conditional precision matrices ``J_q^T J_q`` (inverse = covariance);
+            with outliers, that of the moment-matched scale mixture,
+            ``J_q^T J_q / ((1 - r) + r c^2)`` with ``r`` the outlier probability.
         """
-        theta, extra = self.split(psi)
-        sig, w, log_norm = self.noise(extra)
-        q = np.broadcast_to(q0, theta.shape[:-1] + (self.n, 2))
-        x, y = q[..., 0].copy(), q[..., 1].copy()
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for it in range(n_iter + 1):
-                rr, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
-                C00, C01, C11 = (p + q for p, q in zip(Cp, Cs, strict=True))
-                det = C00 * C11 - C01 * C01
-                d0 = (C11 * g0 - C01 * g1) / det
-                d1 = (C00 * g1 - C01 * g0) / det
-                if it == n_iter:
-                    break
-                x = x - d0
-                y = y - d1
-            per_point = (-0.5 * rr + 0.5 * (g0 * d0 + g1 * d1) - 0.5 * np.log(det) + _LOG2PI
-                         + log_norm + self._log_point_prior(extra, sig, Cp, Cs))
+        per_point, x, y, C00, C01, C11, r = self._laplace_points(psi, q0, n_iter)
         total = per_point.sum(axis=-1)
+        if r is not None:
+            f = 1.0 / ((1.0 - r) + r * self.outlier_scale**2)
+            C00, C01, C11 = C00 * f, C01 * f, C11 * f
         C = np.stack([np.stack([C00, C01], -1), np.stack([C01, C11], -1)], -2)
         return np.where(np.isfinite(total), total, -np.inf), np.stack([x, y], -1), C
 
+    def outlier_prob(self, psi, q0, *, n_iter=4):
+        """Probability that each point is an outlier given ``psi``, shape (..., N).
+
+        ``w L_out / ((1 - w) L_in + w L_out)`` with the points integrated out
+        (the Laplace step of :meth:`laplace`); NaN where a point leaves the
+        model's domain. Requires ``outliers=True``.
+        """
+        if not self.outliers:
+            raise ValueError("outlier_prob needs a likelihood built with outliers=True")
+        return self._laplace_points(psi, q0, n_iter)[-1]
+
+    def min_residual(self, psi, q0, *, n_iter=4):
+        """Each point's squared whitened residual norm at its conditional mode, (..., N).
+
+        ``min_q |R_i(theta, q)|^2`` (Gauss-Newton, the quadratic model's remaining
+        decrease included): about chi-square with ``n_rows - 2`` degrees of
+        freedom for an inlier at the true parameters; NaN outside the domain.
+        """
+        theta, extra = self.split(psi)
+        sig, w, _ = self.noise(extra)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = self._gauss_newton(theta, q0, sig, w, n_iter)
+            return g["rr"] - g["gd"]
+
+    def _gauss_newton(self, theta, q0, sig, w, n_iter):
+        """Gauss-Newton on every point's q; the terms at the last iterate, as a dict."""
+        q = np.broadcast_to(q0, theta.shape[:-1] + (self.n, 2))
+        x, y = q[..., 0].copy(), q[..., 1].copy()
+        for it in range(n_iter + 1):
+            rr, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
+            C00, C01, C11 = (p + q for p, q in zip(Cp, Cs, strict=True))
+            det = C00 * C11 - C01 * C01
+            d0 = (C11 * g0 - C01 * g1) / det
+            d1 = (C00 * g1 - C01 * g0) / det
+            if it < n_iter:
+                x, y = x - d0, y - d1
+        return {"x": x, "y": y, "rr": rr, "Cp": Cp, "Cs": Cs, "C": (C00, C01, C11),
+                "det": det, "gd": g0 * d0 + g1 * d1}
+
+    def _laplace_points(self, psi, q0, n_iter):
+        theta, extra = self.split(psi)
+        sig, w, log_norm = self.noise(extra)
+        r = None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = self._gauss_newton(theta, q0, sig, w, n_iter)
+            per_point = (-0.5 * g["rr"] + 0.5 * g["gd"] - 0.5 * np.log(g["det"]) + _LOG2PI
+                         + log_norm + self._log_point_prior(extra, sig, g["Cp"], g["Cs"]))
+            if self.outliers:
+                per_point, r = mix(extra[..., -1], per_point, g["rr"] - g["gd"], self._n_rows,
+                                   self.outlier_scale, laplace=True)
+        return (per_point, g["x"], g["y"]) + g["C"] + (r,)
+
     def _exact_terms(self, psi, q):
+        """Per-point exact log density of (data, q) given psi, normalisers included."""
         theta, extra = self.split(psi)
         sig, w, log_norm = self.noise(extra)
         with np.errstate(invalid="ignore", divide="ignore"):
             rr, Cp, Cs, _, _ = self._point_terms(theta, q[..., 0], q[..., 1], sig, w)
-            per_point = -0.5 * rr + self._log_point_prior(extra, sig, Cp, Cs)
-        return per_point, log_norm
+            per_point = -0.5 * rr + self._log_point_prior(extra, sig, Cp, Cs) + log_norm
+            if self.outliers:
+                per_point, _ = mix(extra[..., -1], per_point, rr, self._n_rows,
+                                   self.outlier_scale, laplace=False)
+        return per_point
 
     def log_joint(self, psi, q):
         """Exact log density of ``(psi, q)`` (likelihood times point prior), shape (...).
 
         Used by the brute-force joint sampler that validates the collapsed one.
         """
-        per_point, log_norm = self._exact_terms(psi, q)
-        total = np.sum(per_point + log_norm, axis=-1)
+        total = np.sum(self._exact_terms(psi, q), axis=-1)
         return np.where(np.isfinite(total), total, -np.inf)
 
     def point_log_density(self, psi, q):
-        """Per-point exact log density of ``q`` given ``psi`` (up to constants), (..., N)."""
-        out, _ = self._exact_terms(psi, q)
+        """Per-point exact log density of ``q`` given ``psi`` (up to constants), (..., N).
+
+        With ``outliers=True`` it is the density of the mixture (both
+        components over the same q), the target of the point draws.
+        """
+        out = self._exact_terms(psi, q)
         return np.where(np.isfinite(out), out, -np.inf)
 
 

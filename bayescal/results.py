@@ -252,6 +252,10 @@ class CalibrationResult:
     identifiability : IdentifiabilityReport
     extras : dict
         Method-specific outputs (pose, planes, per-stage statistics).
+    outlier_prob : ndarray, shape (N,) or None
+        Probability that each input point (pixel and approximate point) is an
+        outlier, from the outlier mixture (``docs/robustness.md``); None when
+        the method has no outlier model.
     """
 
     method: str
@@ -268,6 +272,7 @@ class CalibrationResult:
     nfev: int
     identifiability: IdentifiabilityReport
     extras: dict = field(default_factory=dict)
+    outlier_prob: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -303,5 +308,11 @@ class CalibrationResult:
         if self.sigma_px_estimated is not None:
             lines.append(f"estimated pixel noise: {self.sigma_px_estimated:.4g} px "
                          f"({self.n_residuals} residuals, {self.n_unknowns} unknowns)")
+        if self.outlier_prob is not None:
+            flagged = np.flatnonzero(self.outlier_prob > 0.5)
+            lines.append(f"outliers (probability > 0.5): {flagged.size} of "
+                         f"{self.outlier_prob.size}"
+                         + (f", rows {', '.join(map(str, flagged[:20]))}"
+                            + (" ..." if flagged.size > 20 else "") if flagged.size else ""))
         lines.append(str(self.identifiability))
         return "\n".join(lines)

@@ -1,0 +1,97 @@
+"""The per-point outlier mixture: a heavy-tailed scale mixture of the model's noise.
+
+Each laser point (its pixel and approximate point together) is an inlier with
+probability ``1 - w`` or an outlier with probability ``w``; an outlier's rows
+have ``c`` times the model's noise (all of them, pixel and scene). Both
+components share the latent point ``q`` and its prior, so the improper point
+prior's constants cancel in the ratio ``L_out / L_in``, which depends only on
+the point's squared whitened residual ``m`` and its number of rows::
+
+    log L_out - log L_in = m (1 - 1/c^2) / 2 + (v - n_rows) log c
+
+``v = 2`` for the Laplace marginals (the outlier's q-integral is c^2 wider),
+``v = 0`` for densities at a given q. See ``docs/robustness.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import betaln, log_expit
+
+from ._validation import check_positive
+
+__all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "check_outlier_options", "log_prior_logit_frac",
+           "mix"]
+
+#: default noise inflation ``c`` of the outlier component
+OUTLIER_SCALE = 100.0
+
+#: default Beta(a, b) prior of the outlier fraction (mean a / (a + b) = 0.05)
+OUTLIER_PRIOR = (1.0, 19.0)
+
+
+def check_outlier_options(outliers, scale, prior):
+    """Validate the outlier switch, scale and prior; returns ``(bool, float, (a, b))``."""
+    if not isinstance(outliers, (bool, np.bool_)):
+        raise TypeError(f"outliers must be True or False, got {outliers!r}")
+    c = check_positive(scale, "outlier_scale")
+    if c <= 1.0:
+        raise ValueError(f"outlier_scale must be > 1 (the outlier component is broader than "
+                         f"the model's noise), got {scale!r}")
+    try:
+        a, b = (float(v) for v in prior)
+    except (TypeError, ValueError):
+        raise TypeError(f"outlier_prior must be a pair (a, b) of Beta parameters, got "
+                        f"{prior!r}") from None
+    if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
+        raise ValueError(f"outlier_prior must be a pair (a, b) of positive finite Beta "
+                         f"parameters, got {prior!r}")
+    return bool(outliers), c, (a, b)
+
+
+def log_prior_logit_frac(x, prior):
+    """Log density of ``x = logit w`` under ``w ~ Beta(a, b)``: ``w^a (1 - w)^b / B(a, b)``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (...)
+    prior : tuple of float
+        ``(a, b)``.
+    """
+    a, b = prior
+    return a * log_expit(x) + b * log_expit(-x) - betaln(a, b)
+
+
+def mix(x, per_in, m, n_rows, c, *, laplace):
+    """Mix each point's inlier log term with the outlier component's.
+
+    Parameters
+    ----------
+    x : ndarray, shape (...)
+        ``logit w``.
+    per_in : ndarray, shape (..., N)
+        Inlier log marginal (Laplace) or log density at q, per point.
+    m : ndarray, shape (..., N)
+        Squared whitened residual norm at the point's mode (Laplace) or at q.
+    n_rows : ndarray, shape (N,)
+        Residual rows per point.
+    c : float
+        Noise inflation of the outlier component.
+    laplace : bool
+        True for the q-integrated marginals, False for densities at q.
+
+    Returns
+    -------
+    per_point : ndarray, shape (..., N)
+        ``log((1 - w) L_in + w L_out)``.
+    r : ndarray, shape (..., N)
+        Outlier probability ``w L_out / ((1 - w) L_in + w L_out)``.
+    """
+    x = np.asarray(x, dtype=float)[..., None]
+    vol = 2.0 if laplace else 0.0
+    delta = 0.5 * m * (1.0 - 1.0 / c**2) + (vol - n_rows) * np.log(c)
+    a = log_expit(-x) + per_in
+    b = log_expit(x) + per_in + delta
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = 1.0 / (1.0 + np.exp(a - b))
+        return np.logaddexp(a, b), r
