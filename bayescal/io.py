@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = [
     "InputError",
     "to_jsonable",
@@ -61,6 +63,7 @@ __all__ = [
     "write_json",
     "read_json",
     "parse_image_size",
+    "duplicate_rows",
     "LASER_COLUMNS",
     "SIGMA_COLUMNS",
 ]
@@ -70,25 +73,6 @@ SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
 _KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane")
 _STACKED = {"pixels": ("u", "v"), "approx_points": ("x", "y", "z"), "points": ("x", "y", "z"),
             "sigma_scene": SIGMA_COLUMNS}
-
-
-class InputError(ValueError):
-    """A data file is unreadable or inconsistent (the command line exits with code 2).
-
-    Attributes
-    ----------
-    path : str
-        The file.
-    line : int or None
-        1-based line in a CSV file (the header is line 1), or 0-based index in
-        an NPZ array.
-    column : str or None
-        The column (CSV) or array (NPZ) name.
-    """
-
-    def __init__(self, message, *, path=None, line=None, column=None):
-        super().__init__(message)
-        self.path, self.line, self.column = path, line, column
 
 
 @dataclass
@@ -420,6 +404,34 @@ def load_laser_data(path, points_path=None, *, need_points=True):
             sig = np.column_stack([qt.columns.get(c, np.full(len(qt), np.inf))
                                    for c in SIGMA_COLUMNS])
     return LaserData(pixels, approx, sig, _sigma_px(tables), pt, qt)
+
+
+def duplicate_rows(data):
+    """Groups of exactly repeated laser points (every column equal).
+
+    Parameters
+    ----------
+    data : LaserData
+
+    Returns
+    -------
+    list of list of int
+        File line numbers (CSV, header = 1) or row indices (NPZ) of each group
+        of identical rows; empty when every row is distinct. A duplicated row
+        counts twice in the likelihood and shrinks every sd by about sqrt(2).
+    """
+    cols = [data.pixels]
+    for a in (data.approx_points, data.sigma_scene):
+        if a is not None:
+            cols.append(a)
+    rows = np.column_stack(cols)
+    _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    inverse = np.asarray(inverse).ravel()
+    lines = data.pixel_table.lines
+    groups = []
+    for g in np.flatnonzero(counts > 1):
+        groups.append([int(lines[i]) for i in np.flatnonzero(inverse == g)])
+    return sorted(groups)
 
 
 def parse_image_size(text):
