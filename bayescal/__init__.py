@@ -19,6 +19,7 @@ from .results import (
     ConvergenceError,
     IdentifiabilityReport,
     identifiability_report,
+    load_result,
 )
 from .sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .scenes import CalibrationData, Dataset, room_walls, simulate_room
@@ -53,6 +54,7 @@ __all__ = [
     "Posterior",
     "Reconstruction",
     "load_posterior",
+    "load_result",
     "Prior",
     "default_prior",
     "NotConvergedWarning",

@@ -274,6 +274,7 @@ class CalibrateJob:
                 LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
             except (TypeError, ValueError) as exc:
                 raise UsageError(f"{', '.join(map(str, data.paths))}: {exc}") from None
+            check_geometry(data)
         names = ("data", "points", "calibration", "calibration_laser", "nominal", "truth")
         check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
         return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
@@ -310,8 +311,6 @@ class CalibrateJob:
             if data.approx_points is not None:
                 check_projection_domain(data.approx_points, data.point_table, nominal)
                 _warn_duplicates(data)
-            if method != "sequential":
-                check_geometry(data)
         return data, calib
 
 
