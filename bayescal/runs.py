@@ -120,6 +120,9 @@ def calibrate_result(job):
         if exc.result is None:
             raise Failure(f"{job.method} calibration did not converge: {exc}") from None
         return exc.result, f"{job.method} calibration did not converge: {exc}"
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing was "
+                      "written") from None
     if job.sigma_px is not None:
         result.extras["sigma_px"] = float(job.sigma_px)
     if job.sigma_scene is not None and job.method == "simultaneous":

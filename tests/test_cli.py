@@ -533,3 +533,157 @@ def test_result_rows_flag_prior_dominated_parameters():
     np.testing.assert_allclose(rows["h"]["sd_ratio"], 0.4, rtol=1e-12)
     np.testing.assert_allclose(rows["u0"]["q95"] - rows["u0"]["q05"], 2 * 1.6448536 * sd[4],
                                rtol=1e-7)
+
+
+# -- every bad input, one behaviour (in process: fast) -----------------------------------
+
+def _main(args, capsys):
+    from bayescal.cli import main
+
+    rc = main([str(a) for a in args])
+    return rc, capsys.readouterr()
+
+
+def _room_csv(path, n=12, azimuth_span=2 * np.pi, dup=None):
+    p = bc.SensorParams.paper()
+    az = np.linspace(0, azimuth_span, n, endpoint=False)
+    pts = np.column_stack([2000 * np.cos(az), 2000 * np.sin(az), np.full(n, -300.0)])
+    pix = bc.project(p, pts)
+    rows = [f"{u!r},{v!r},{x!r},{y!r},{z!r}" for (u, v), (x, y, z) in zip(pix.tolist(), pts.tolist(), strict=True)]
+    if dup is not None:
+        rows.append(rows[dup])
+    path.write_text("u,v,x,y,z\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("n, span, match", [
+    (1, 2 * np.pi, r"1 laser point\(s\); expected at least 5"),
+    (3, 2 * np.pi, r"3 laser point\(s\); expected at least 5"),
+    (12, 1e-9, r"span [0-9.e-]+ degrees of azimuth; expected at least 10"),
+])
+def test_degenerate_geometry_exit_2(tmp_path, capsys, monkeypatch, n, span, match):
+    import re
+
+    monkeypatch.chdir(tmp_path)
+    _room_csv(tmp_path / "d.csv", n=n, azimuth_span=span)
+    rc, cap = _main(["calibrate", "d.csv", "--sigma-px", "0.1", "--sigma-scene", "50",
+                     "--out", "out"], capsys)
+    assert rc == 2 and re.search(match, cap.err), cap.err
+    assert len(cap.err.strip().splitlines()) == 1 and "d.csv" in cap.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv"]
+
+
+def test_duplicate_rows_warn_with_their_lines(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    lines = (sim / "laser.csv").read_text().splitlines()
+    first = next(i for i, t in enumerate(lines) if t and not t.startswith("#")) + 1   # header
+    lines.append(lines[first + 3])                          # copy the 4th data row to the end
+    (tmp_path / "d.csv").write_text("\n".join(lines) + "\n")
+    rc, cap = _main(["calibrate", "d.csv", "--out", "out"], capsys)
+    assert rc == 0, cap.err
+    assert f"exact duplicate lines {first + 4} and {len(lines)}" in cap.err
+
+
+def test_truth_of_the_wrong_length_exit_2(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    truth = json.loads((sim / "truth.json").read_text())
+    truth["points"] = truth["points"][:-1]
+    (tmp_path / "t.json").write_text(json.dumps(truth))
+    rc, cap = _main(["calibrate", sim / "laser.csv", "--truth", "t.json", "--out", "o"], capsys)
+    assert rc == 2 and f"it has {N_POINTS - 1} points but the data have {N_POINTS}" in cap.err
+    assert not (tmp_path / "o").exists()
+
+
+def test_read_only_output_folder_exit_2(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        rc, cap = _main(["simulate", "--out", ro / "sim", "--n-points", 10], capsys)
+    finally:
+        ro.chmod(0o755)
+    assert rc == 2 and "is not a writable folder" in cap.err
+    assert list(ro.iterdir()) == []
+
+
+@pytest.mark.parametrize("damage", ["truncate", "foreign"])
+def test_damaged_posterior_file_exit_2(bayes_run, tmp_path, capsys, monkeypatch, damage):
+    import shutil
+
+    monkeypatch.chdir(tmp_path)
+    run_dir = tmp_path / "run"
+    shutil.copytree(bayes_run[0], run_dir)
+    post = run_dir / "posterior.npz"
+    if damage == "truncate":
+        post.write_bytes(post.read_bytes()[: post.stat().st_size // 2])
+    else:
+        np.savez(post, something=np.zeros(3))
+    (tmp_path / "new.csv").write_text("u,v\n450,300\n")
+    rc, cap = _main(["reconstruct", "new.csv", "--run", run_dir, "--out", "rec"], capsys)
+    assert rc == 2 and "posterior.npz is not a readable bayescal posterior file" in cap.err
+    assert len(cap.err.strip().splitlines()) == 1 and not (tmp_path / "rec").exists()
+
+
+def test_interrupt_inside_a_job_exit_130_nothing_left(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bc, "calibrate_simultaneous", interrupted)
+    rc, cap = _main(["calibrate", sim / "laser.csv", "--out", "new/deeper/o"], capsys)
+    assert rc == 130 and cap.err.strip() == "bayescal: interrupted; nothing was written"
+    assert list(tmp_path.iterdir()) == []                  # no folder, no staging, no parents
+
+
+def test_sigint_during_sampling_exit_130_nothing_left(sim, tmp_path):
+    """A real Ctrl-C (SIGINT) while emcee runs: one line, no traceback, nothing written."""
+    import signal
+    import time
+
+    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
+    env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root)
+    proc = subprocess.Popen([sys.executable, "-m", "bayescal", "calibrate", sim / "laser.csv",
+                             "--method", "bayes", "--no-progress", "--out", "o"], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not any("bayescal-tmp" in p.name
+                                             for p in tmp_path.iterdir()):
+        time.sleep(0.1)
+    time.sleep(2.0)                                        # inside the sampler by now
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["bayescal: interrupted; nothing was written"], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_force_never_replaces_a_file_bayescal_did_not_write(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _main(["simulate", "--out", "o", "--n-points", 10], capsys)[0] == 0
+    manifest = json.loads((tmp_path / "o" / MANIFEST).read_text())
+    manifest["files"].remove("truth.json")                 # as if the user had put it there
+    (tmp_path / "o" / MANIFEST).write_text(json.dumps(manifest))
+    (tmp_path / "o" / "truth.json").write_text("mine")
+    rc, cap = _main(["simulate", "--out", "o", "--n-points", 12, "--force"], capsys)
+    assert rc == 2 and "truth.json, which bayescal did not write" in cap.err
+    assert (tmp_path / "o" / "truth.json").read_text() == "mine"
+    assert len(bayescal.io.load_laser_data(tmp_path / "o" / "laser.npz").pixels) == 10
+    assert not [p for p in tmp_path.iterdir() if "bayescal-tmp" in p.name]
+
+
+def test_version_and_help_without_markup(tmp_path, capsys):
+    from bayescal.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        from bayescal.cli import build_parser
+
+        build_parser().parse_args(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"bayescal {bc.__version__}"
+    for cmd in ("simulate", "calibrate", "reconstruct", "report", "study", "demo"):
+        assert main([cmd, "--help"]) == 0
+        text = capsys.readouterr().out
+        assert "%%" not in text and "`" not in text, cmd
+        if cmd == "study":
+            assert "fig9" in text and "conditioning" in text
