@@ -1,4 +1,4 @@
-"""Statistical validation of the Bayesian posterior (DESIGN section 5, rungs 3 and 4).
+"""Statistical validation of the Bayesian posterior (docs/validation.md, rungs 3 and 4).
 
 * Rung 3: the collapsed sampler (:func:`bayescal.sample_posterior`) against a
   long brute-force emcee run over the full joint (:func:`bayescal.sampling.sample_joint`,
@@ -8,15 +8,12 @@
   replications, chi-square(3) of the points' normalised squared errors, and
   simulation-based calibration with truths drawn from the prior.
 
-The replication code lives in ``studies/coverage.py`` (loaded here by path) so
+The replication code lives in :mod:`bayescal.validation` so
 the test and the study run the same experiment. Every slow test is marked
 ``@pytest.mark.slow`` (``make test-slow``); the fast ``*_smoke`` tests run the
 same pipelines on tiny settings in a few seconds each.
 """
 
-import importlib.util
-import pathlib
-import sys
 import warnings
 
 import numpy as np
@@ -24,16 +21,9 @@ import pytest
 from scipy import stats
 
 import bayescal as bc
+from bayescal import validation as cov
 from bayescal.laser import cone_point_theta
 from bayescal.sampling import sample_joint
-
-_SPEC = importlib.util.spec_from_file_location(
-    "bayescal_study_coverage", pathlib.Path(__file__).parents[1] / "studies" / "coverage.py")
-cov = importlib.util.module_from_spec(_SPEC)
-# registered before it runs, so that its functions pickle by reference into the worker
-# processes of run_coverage / run_sbc
-sys.modules[_SPEC.name] = cov
-_SPEC.loader.exec_module(cov)
 
 WORKERS = 2
 
