@@ -29,7 +29,7 @@ PRIOR_DOMINATED_RATIO = 0.5
 #: centres by more than this many MCMC sd
 LAPLACE_SD_TOLERANCE = 0.2
 LAPLACE_MEAN_TOLERANCE = 0.5
-#: parameters the data cannot see one by one (DESIGN fact 1)
+#: parameters the data cannot see one by one (docs/model.md, fact 1)
 NON_IDENTIFIABLE = ("phi", "alpha_u", "alpha_v")
 
 _ARRAYS = ("param_samples", "point_samples", "noise_samples", "pixels", "approx_points",

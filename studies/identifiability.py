@@ -1,7 +1,7 @@
 """Identifiability study: the phi/alpha ridge and what the priors do to it.
 
 ``phi``, ``alpha_u`` and ``alpha_v`` enter the model only through
-``gamma_u = alpha_u (xi + phi)`` and ``gamma_v = alpha_v (xi + phi)`` (DESIGN
+``gamma_u = alpha_u (xi + phi)`` and ``gamma_v = alpha_v (xi + phi)`` (docs/model.md,
 fact 1): the data fix the gammas, and the posterior slides along the ridge
 ``alpha_u (xi + phi) = const`` as far as the priors let it. This study samples
 the posterior of one small room twice -- with the default prior

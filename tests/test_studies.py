@@ -112,7 +112,7 @@ def test_design_study(tmp_path):
     res = _run("design", tmp_path, "--workers", "1")
     rows = {(r["vary"], r["value"]): r for r in res["rows"]}
     small, large = rows[("range_mm", 1000.0)], rows[("range_mm", 5000.0)]
-    # DESIGN fact 2: conditioning falls fast with range
+    # docs/model.md, fact 2: conditioning falls fast with range
     assert large["new_point_sd_mm"] > 5 * small["new_point_sd_mm"]
     assert (tmp_path / "design.png").is_file()
 
