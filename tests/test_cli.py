@@ -549,7 +549,8 @@ def _room_csv(path, n=12, azimuth_span=2 * np.pi, dup=None):
     az = np.linspace(0, azimuth_span, n, endpoint=False)
     pts = np.column_stack([2000 * np.cos(az), 2000 * np.sin(az), np.full(n, -300.0)])
     pix = bc.project(p, pts)
-    rows = [f"{u!r},{v!r},{x!r},{y!r},{z!r}" for (u, v), (x, y, z) in zip(pix.tolist(), pts.tolist(), strict=True)]
+    rows = [f"{u!r},{v!r},{x!r},{y!r},{z!r}"
+            for (u, v), (x, y, z) in zip(pix.tolist(), pts.tolist(), strict=True)]
     if dup is not None:
         rows.append(rows[dup])
     path.write_text("u,v,x,y,z\n" + "\n".join(rows) + "\n")

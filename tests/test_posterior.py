@@ -41,7 +41,7 @@ def test_save_load_round_trip_is_lossless(post, tmp_path):
         np.testing.assert_array_equal(getattr(back, name), getattr(post, name), err_msg=name)
     np.testing.assert_array_equal(back.sigma_scene, post.sigma_scene)
     assert back.summary_text() == post.summary_text()
-    for r_back, r in zip(back.summary_rows(), post.summary_rows(), strict=True):    # tau of phi: NaN
+    for r_back, r in zip(back.summary_rows(), post.summary_rows(), strict=True):  # tau of phi: NaN
         assert r_back.keys() == r.keys()
         for k in r:
             np.testing.assert_array_equal(r_back[k], r[k], err_msg=f"{r['name']} {k}")
