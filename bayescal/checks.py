@@ -131,7 +131,7 @@ def noise_warnings(result, sigma_px_used):
         ratio = est / sigma_px_used
         if not (1 / NOISE_RATIO_WARN <= ratio <= NOISE_RATIO_WARN):
             out.append(f"The pixel noise estimated from the residuals ({est:.3g} px) is "
-                       f"{ratio:.3g} x the one used ({sigma_px_used:.3g} px): the model does "
+                       f"{ratio:.3g} x the one given ({sigma_px_used:.3g} px): the model does "
                        "not fit these data at the stated noise, so the sds and intervals below "
                        "are not reliable (check the pixel noise, the scene sds and outliers).")
     dof = result.n_residuals - result.n_unknowns
