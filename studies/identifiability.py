@@ -64,7 +64,7 @@ def posterior_trial(spec, rng):
                                     sigma_scene=sig, prior=_prior(spec["prior"]))
     x = post.param_samples
     i_phi, i_au = bc.PARAM_NAMES.index("phi"), bc.PARAM_NAMES.index("alpha_u")
-    return {"prior": spec["name"], "samples": x, "summary": post.summary(),
+    return {"prior": spec["name"], "samples": x, "summary": post.summary_rows(),
             "summary_text": post.summary_text(), "converged": bool(post.converged),
             "corr_phi_alpha_u": float(np.corrcoef(x[:, i_phi], x[:, i_au])[0, 1]),
             "identifiability_text": str(sim.identifiability),
