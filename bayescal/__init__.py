@@ -21,6 +21,7 @@ from .results import (
     ConvergenceError,
     IdentifiabilityReport,
     identifiability_report,
+    load_result,
 )
 from .sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .scenes import CalibrationData, Dataset, room_walls, simulate_room
@@ -56,6 +57,7 @@ __all__ = [
     "Posterior",
     "Reconstruction",
     "load_posterior",
+    "load_result",
     "Prior",
     "default_prior",
     "NotConvergedWarning",

@@ -30,7 +30,7 @@ PRIOR_DOMINATED_RATIO = 0.5
 #: centres by more than this many MCMC sd
 LAPLACE_SD_TOLERANCE = 0.2
 LAPLACE_MEAN_TOLERANCE = 0.5
-#: parameters the data cannot see one by one (DESIGN fact 1)
+#: parameters the data cannot see one by one (docs/model.md, fact 1)
 NON_IDENTIFIABLE = ("phi", "alpha_u", "alpha_v")
 
 _ARRAYS = ("param_samples", "point_samples", "noise_samples", "pixels", "approx_points",
@@ -115,7 +115,7 @@ class Posterior:
         self.acceptance, self.imh_acceptance = float(acceptance), float(imh_acceptance)
         self.map_result = map_result
         if map_result is not None:
-            laplace_cov8 = map_result.covariance
+            laplace_cov8 = map_result.covariance()
             laplace_cov7 = map_result.covariance_identifiable
             map_params = map_result.params.to_array()
             map_points = map_result.points
@@ -148,6 +148,15 @@ class Posterior:
         return self.point_samples.mean(axis=0)
 
     @property
+    def params(self):
+        """The posterior mean of the 8 parameters (:class:`SensorParams`); shared vocabulary."""
+        return self.params_mean
+
+    @property
+    def points(self):
+        """The posterior mean of each laser point, shape (N, 3), mm; shared vocabulary."""
+        return self.point_mean
+
     def point_covariance(self):
         """Posterior covariance of each laser point, shape (N, 3, 3), mm^2."""
         d = self.point_samples - self.point_mean
@@ -188,6 +197,10 @@ class Posterior:
         return tau, ess
 
     def summary(self):
+        """The summary table and diagnostics as text (see :meth:`summary_rows`)."""
+        return self.summary_text()
+
+    def summary_rows(self):
         """One row per paper parameter.
 
         Returns
@@ -246,7 +259,7 @@ class Posterior:
         lines = [f"{'param':8s} {'mean':>11s} {'sd':>10s} {'5%':>11s} {'50%':>11s} {'95%':>11s} "
                  f"{'tau':>6s} {'ESS':>7s} {'sd/prior':>8s}  flags"]
         lap = {r["name"]: r for r in self.laplace_comparison()}
-        for r in self.summary():
+        for r in self.summary_rows():
             flags = []
             if r["prior_dominated"]:
                 flags.append("PRIOR-DOMINATED")
@@ -267,6 +280,39 @@ class Posterior:
         lines.append(f"points: {self.point_samples.shape[1]} laser points, {self.n_samples} "
                      f"joint samples (IMH correction acceptance {self.imh_acceptance:.2f})")
         return "\n".join(lines)
+
+    def to_dict(self):
+        """Plain-data summary: ``method``, ``params`` (means), ``covariance`` (8x8),
+        ``covariance_identifiable`` (7x7), ``rows``, ``converged``, ``n_samples``,
+        ``tau``, ``ess``, ``noise`` (mean of each inferred noise level)."""
+        from .io import to_jsonable
+
+        return to_jsonable({
+            "method": "bayes", "params": self.params_mean.as_dict(),
+            "covariance": self.covariance(),
+            "covariance_identifiable": self.covariance(identifiable=True),
+            "rows": self.summary_rows(), "converged": self.converged,
+            "n_samples": self.n_samples, "tau": self.tau, "ess": self.ess,
+            "noise": {n: float(np.exp(self.noise_samples[:, k]).mean())
+                      for k, n in enumerate(self.noise_names)}})
+
+    def to_inference_data(self):
+        """The samples as an ``arviz.InferenceData`` (needs the ``arviz`` extra).
+
+        Posterior group: the 8 paper parameters (one chain of S draws), the
+        points as ``points`` (draw, point, axis), and each inferred noise level.
+        """
+        try:
+            import arviz
+        except ImportError:
+            raise ImportError("to_inference_data needs arviz (pip install 'bayescal[arviz]')") \
+                from None
+        post = {n: self.param_samples[None, :, k] for k, n in enumerate(PARAM_NAMES)}
+        post["points"] = self.point_samples[None]
+        for k, n in enumerate(self.noise_names):
+            post[n] = np.exp(self.noise_samples[None, :, k])
+        return arviz.from_dict(posterior=post, dims={"points": ["point", "axis"]},
+                               coords={"axis": ["x", "y", "z"]})
 
     def __repr__(self):
         return (f"<Posterior: {self.n_samples} samples, {self.point_samples.shape[1]} points, "

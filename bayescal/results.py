@@ -1,209 +1,70 @@
-"""The result type of the classical calibrations and the identifiability report.
+"""The result of the least-squares calibrations, in the vocabulary shared with the posterior.
 
-Both least-squares methods (:func:`~bayescal.calibrate_sequential` and the
-simultaneous method) return a :class:`CalibrationResult`: the eight paper
-parameters, their covariance (8x8, order :data:`~bayescal.PARAM_NAMES`) and the
-covariance of the seven identifiable combinations (7x7, order
-:data:`~bayescal.IDENTIFIABLE_NAMES`), residual statistics, convergence
-information and an :class:`IdentifiabilityReport`.
+Both least-squares methods (:func:`~bayescal.calibrate_sequential` and
+:func:`~bayescal.calibrate_simultaneous`) return a :class:`CalibrationResult`.
+It answers to the same names as :class:`~bayescal.Posterior`:
 
-The data never determine ``phi`` (DESIGN fact 1: ``phi``, ``alpha_u`` and
-``alpha_v`` enter the model only through ``gamma_u = alpha_u (xi + phi)`` and
-``gamma_v = alpha_v (xi + phi)``). The 8x8 covariance is therefore built from
-the 7x7 identifiable one plus a variance for ``phi`` that the *method* chooses
-(0 when ``phi`` is held fixed, a prior variance otherwise), see
-:func:`covariance_8_from_identifiable`.
+``params``
+    the MAP estimate (:class:`~bayescal.SensorParams`);
+``points``
+    the reconstructed laser points, (N, 3) mm (None without room data);
+``covariance(identifiable=False)``
+    (8, 8) in the order of :data:`~bayescal.PARAM_NAMES`, or (7, 7) in the
+    identifiable coordinates;
+``point_covariance()``
+    (N, 3, 3) mm^2;
+``reconstruct(pixels)``
+    new pixels to 3D points with first-order uncertainty (parameter covariance
+    plus pixel noise); unpacks as ``mean (M, 3), covariance (M, 3, 3)``;
+``summary()``, ``to_dict()``, ``save(path)``, :func:`load_result`.
+
+The data never determine ``phi`` (``docs/model.md``, "Identifiability": ``phi``,
+``alpha_u`` and ``alpha_v`` enter the model only through
+``gamma_u = alpha_u (xi + phi)`` and ``gamma_v = alpha_v (xi + phi)``). The 8x8
+covariance is built from the 7x7 identifiable one plus a variance for ``phi``
+that the method chooses (0 when ``phi`` is held fixed, a prior variance
+otherwise), see :func:`~bayescal.identifiability.covariance_8_from_identifiable`.
+
+File format (:meth:`CalibrationResult.save`): one JSON object with
+``"format": "bayescal-result"`` and ``"version"``; non-finite numbers are
+written as the strings ``"nan"``, ``"inf"``, ``"-inf"``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+import os
+import pathlib
 
 import numpy as np
 
-from ._validation import as_finite_array
-from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams, identifiable_jacobian
+from .constants import Z90
+from .identifiability import (
+    IdentifiabilityReport,
+    covariance_8_from_identifiable,
+    identifiability_report,
+    identifiable_to_paper_jacobian,
+)
+from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
 
 __all__ = [
     "IdentifiabilityReport",
     "identifiability_report",
     "CalibrationResult",
     "ConvergenceError",
+    "LinearReconstruction",
     "covariance_8_from_identifiable",
     "identifiable_to_paper_jacobian",
+    "linear_reconstruction",
+    "load_result",
+    "RESULT_FORMAT",
+    "RESULT_VERSION",
 ]
 
-_MIN_WEIGHT = 0.05
-
-
-@dataclass
-class IdentifiabilityReport:
-    """Singular-value analysis of a (column-scaled) Jacobian.
-
-    Attributes
-    ----------
-    names : tuple of str
-        Column names of the Jacobian analysed, length P.
-    singular_values : ndarray, shape (P,)
-        Singular values of the column-scaled Jacobian, descending.
-    condition_number : float
-        ``s_max / s_min`` (``inf`` if ``s_min == 0``).
-    null_directions : list of dict
-        One entry per singular value ``s < rtol * s_max``, each
-        ``{"singular_value": s, "components": {name: weight}}``: the weights of
-        the unit right-singular vector (in scaled coordinates) with
-        ``|weight| >= 0.05``, largest first. These are the parameter
-        combinations the data cannot determine.
-    rtol : float
-        Relative threshold used.
-    """
-
-    names: tuple
-    singular_values: np.ndarray
-    condition_number: float
-    null_directions: list
-    rtol: float = 1e-6
-
-    def __str__(self) -> str:
-        lines = [f"identifiability of {len(self.names)} columns: "
-                 f"condition number {self.condition_number:.3g}"]
-        if not self.null_directions:
-            lines.append(f"no near-null direction (all s >= {self.rtol:g} * s_max)")
-        for k, nd in enumerate(self.null_directions, 1):
-            comps = ", ".join(f"{w:+.3f} {n}" for n, w in nd["components"].items())
-            lines.append(f"near-null direction {k} (s = {nd['singular_value']:.3g}): {comps}")
-            lines.append("  not determined by the data: "
-                         + ", ".join(nd["components"].keys()))
-        return "\n".join(lines)
-
-
-def identifiability_report(jacobian, names, *, scale=None, rtol=1e-6):
-    """Find the parameter combinations a Jacobian cannot determine.
-
-    Parameters
-    ----------
-    jacobian : array_like, shape (n_residuals, n_params)
-        Jacobian of the *whitened* residuals (each residual divided by its
-        standard deviation) with respect to the parameters.
-    names : sequence of str, length n_params
-        Parameter (column) names.
-    scale : array_like, shape (n_params,), optional
-        Typical magnitude of each column; each column is divided by it before
-        the SVD so that units do not decide the answer. Default: the column
-        norms (every scaled column has unit norm). A zero scale leaves its
-        column unscaled (an all-zero column is reported as a null direction).
-    rtol : float, optional
-        Singular values below ``rtol * s_max`` are near-null directions.
-
-    Returns
-    -------
-    IdentifiabilityReport
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> J = np.array([[1.0, 2.0], [2.0, 4.0]])      # second column = 2 x first
-    >>> rep = identifiability_report(J, ["a", "b"])
-    >>> sorted(rep.null_directions[0]["components"])
-    ['a', 'b']
-    """
-    J = as_finite_array(jacobian, "jacobian")
-    if J.ndim != 2:
-        raise ValueError(f"jacobian must have shape (n_residuals, n_params), got {J.shape}")
-    names = tuple(str(n) for n in names)
-    if len(names) != J.shape[1]:
-        raise ValueError(f"names must have one entry per jacobian column ({J.shape[1]}), "
-                         f"got {len(names)}")
-    if not (np.isfinite(rtol) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
-    if scale is None:
-        scale = np.linalg.norm(J, axis=0)
-    else:
-        scale = as_finite_array(scale, "scale")
-        if scale.shape != (J.shape[1],):
-            raise ValueError(f"scale must have shape ({J.shape[1]},), got {scale.shape}")
-    scale = np.where(scale == 0, 1.0, np.abs(scale))
-    Js = J / scale
-    # thin SVD unless there are fewer residuals than columns (then all of V is needed)
-    _, s, vt = np.linalg.svd(Js, full_matrices=J.shape[0] < J.shape[1])
-    sv = np.zeros(J.shape[1])
-    sv[: s.size] = s                      # fewer residuals than columns: missing s are 0
-    smax = sv[0] if sv.size else 0.0
-    cond = float(smax / sv[-1]) if sv.size and sv[-1] > 0 else float("inf")
-    null = []
-    for k in range(sv.size):
-        if sv[k] < rtol * smax or smax == 0:
-            v = vt[k]
-            v = v * np.sign(v[np.argmax(np.abs(v))])     # largest weight positive
-            order = np.argsort(-np.abs(v))
-            comps = {names[i]: float(v[i]) for i in order if abs(v[i]) >= _MIN_WEIGHT}
-            null.append({"singular_value": float(sv[k]), "components": comps})
-    return IdentifiabilityReport(names=names, singular_values=sv, condition_number=cond,
-                                 null_directions=null, rtol=float(rtol))
-
-
-def identifiable_to_paper_jacobian(params):
-    """Jacobian ``d theta / d a`` of the identifiable coordinates w.r.t. the paper's.
-
-    Parameters
-    ----------
-    params : SensorParams
-
-    Returns
-    -------
-    ndarray, shape (7, 8)
-        Rows :data:`~bayescal.IDENTIFIABLE_NAMES`, columns
-        :data:`~bayescal.PARAM_NAMES`. A Jacobian ``J7`` with respect to theta
-        becomes ``J7 @ identifiable_to_paper_jacobian(params)`` with respect to
-        the eight paper parameters (its phi/alpha direction is then exactly null).
-    """
-    theta = params.to_identifiable()
-    return np.linalg.inv(identifiable_jacobian(theta, params.phi))[:7]
-
-
-def covariance_8_from_identifiable(theta, phi, cov7, var_phi):
-    """Covariance of the eight paper parameters from the identifiable one.
-
-    ``J @ blockdiag(cov7, var_phi) @ J.T`` with ``J = identifiable_jacobian(theta, phi)``
-    (first order). ``phi`` is independent of theta: the data say nothing about it.
-
-    Parameters
-    ----------
-    theta : array_like, shape (7,)
-        Identifiable parameters ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``.
-    phi : float
-        Value of ``phi`` the paper parameters are reported at.
-    cov7 : array_like, shape (7, 7)
-        Covariance of theta (order :data:`~bayescal.IDENTIFIABLE_NAMES`).
-    var_phi : float
-        Variance of ``phi``: 0 when ``phi`` is held fixed, its prior variance
-        otherwise.
-
-    Returns
-    -------
-    ndarray, shape (8, 8)
-        Order :data:`~bayescal.PARAM_NAMES`.
-    """
-    theta = as_finite_array(theta, "theta")
-    if theta.shape != (7,):
-        raise ValueError(f"theta must have shape (7,), got {theta.shape}")
-    cov7 = as_finite_array(cov7, "cov7", allow_nan=True)
-    if cov7.shape != (7, 7):
-        raise ValueError(f"cov7 must have shape (7, 7), got {cov7.shape}")
-    var_phi = float(var_phi)
-    if not var_phi >= 0:
-        raise ValueError(f"var_phi must be a non-negative variance, got {var_phi!r}")
-    C = np.zeros((8, 8))
-    C[:7, :7] = cov7
-    C[7, 7] = var_phi
-    J = identifiable_jacobian(theta, phi)
-    out = J @ np.nan_to_num(C) @ J.T
-    # a NaN variance (parameter not estimated) stays confined to the outputs depending on it
-    nan_in = np.isnan(np.diag(C))
-    nan_out = np.any((J != 0) & nan_in[None, :], axis=1)
-    out[nan_out, :] = np.nan
-    out[:, nan_out] = np.nan
-    return out
+RESULT_FORMAT = "bayescal-result"
+RESULT_VERSION = 1
+#: extras that are plain arrays or numbers and are saved with the result
+_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene")
 
 
 class ConvergenceError(RuntimeError):
@@ -220,22 +81,70 @@ class ConvergenceError(RuntimeError):
         self.result = result
 
 
-@dataclass
+class LinearReconstruction:
+    """Points triangulated with first-order uncertainty; unpacks as ``mean, covariance``.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (M, 3)
+        mm (NaN where the ray misses the cone).
+    covariance : ndarray, shape (M, 3, 3)
+        mm^2.
+    """
+
+    def __init__(self, mean, covariance):
+        self.mean, self.covariance = mean, covariance
+
+    def __iter__(self):
+        return iter((self.mean, self.covariance))
+
+
+def linear_reconstruction(params, cov_identifiable, pixels, sigma_px):
+    """Triangulate pixels and propagate parameter and pixel uncertainty to first order.
+
+    ``cov = J_theta C_theta J_theta^T + sigma_px^2 J_px J_px^T`` with the
+    analytic Jacobians of :func:`~bayescal.laser.triangulate_theta`.
+
+    Parameters
+    ----------
+    params : SensorParams
+    cov_identifiable : ndarray, shape (7, 7)
+        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``; NaN entries
+        (not estimated) are treated as 0.
+    pixels : ndarray, shape (M, 2)
+        px.
+    sigma_px : float
+        Pixel noise of the new pixels, px (0 for the parameter part only).
+
+    Returns
+    -------
+    LinearReconstruction
+        Unpacks as ``mean (M, 3)`` mm and ``covariance (M, 3, 3)`` mm^2.
+    """
+    from .laser import triangulate_theta
+
+    theta = params.to_identifiable()
+    pts, _, dpix, dth = triangulate_theta(theta, np.asarray(pixels, float), jacobian=True)
+    C = np.nan_to_num(np.asarray(cov_identifiable, float))
+    cov = dth @ C @ np.swapaxes(dth, -1, -2) + sigma_px**2 * dpix @ np.swapaxes(dpix, -1, -2)
+    return LinearReconstruction(pts, cov)
+
+
 class CalibrationResult:
     """Result of a least-squares calibration (sequential or simultaneous).
 
-    Attributes
+    Parameters
     ----------
     method : str
         ``"sequential"`` or ``"simultaneous"``.
     params : SensorParams
         Estimated parameters (``phi`` as fixed or as given by its prior).
     points : ndarray, shape (N, 3) or None
-        Reconstructed laser points in frame C, mm (None if the method was
-        given no room pixels).
+        Reconstructed laser points in frame C, mm.
     covariance : ndarray, shape (8, 8)
-        Covariance of the paper parameters, order :data:`~bayescal.PARAM_NAMES`.
-        NaN rows/columns mark parameters the method did not estimate.
+        Covariance of the paper parameters, order :data:`~bayescal.PARAM_NAMES`;
+        NaN rows/columns mark parameters the method did not estimate. Read it
+        back with :meth:`covariance`.
     covariance_identifiable : ndarray, shape (7, 7)
         Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``.
     residual_rms : dict
@@ -250,35 +159,86 @@ class CalibrationResult:
     nfev : int
         Residual evaluations (all stages).
     identifiability : IdentifiabilityReport
-    extras : dict
-        Method-specific outputs (pose, planes, per-stage statistics).
-    outlier_prob : ndarray, shape (N,) or None
-        Probability that each input point (pixel and approximate point) is an
-        outlier, from the outlier mixture (``docs/robustness.md``); None when
-        the method has no outlier model.
+    extras : dict, optional
+        Method-specific outputs (pose, planes, ``point_covariance`` (N, 3, 3)).
+    outlier_prob : ndarray, shape (N,), optional
+        Per-point probability of being an outlier (None: not modelled).
     """
 
-    method: str
-    params: SensorParams
-    points: np.ndarray | None
-    covariance: np.ndarray
-    covariance_identifiable: np.ndarray
-    residual_rms: dict
-    sigma_px_estimated: float | None
-    n_residuals: int
-    n_unknowns: int
-    converged: bool
-    message: str
-    nfev: int
-    identifiability: IdentifiabilityReport
-    extras: dict = field(default_factory=dict)
-    outlier_prob: np.ndarray | None = None
+    def __init__(self, *, method, params, points, covariance, covariance_identifiable,
+                 residual_rms, sigma_px_estimated, n_residuals, n_unknowns, converged,
+                 message, nfev, identifiability, extras=None, outlier_prob=None):
+        self.method, self.params = str(method), params
+        self.points = None if points is None else np.asarray(points, float)
+        self._covariance = np.asarray(covariance, float)
+        self.covariance_identifiable = np.asarray(covariance_identifiable, float)
+        self.residual_rms = dict(residual_rms)
+        self.sigma_px_estimated = sigma_px_estimated
+        self.n_residuals, self.n_unknowns = int(n_residuals), int(n_unknowns)
+        self.converged, self.message, self.nfev = bool(converged), str(message), int(nfev)
+        self.identifiability = identifiability
+        self.extras = dict(extras or {})
+        if outlier_prob is None:
+            outlier_prob = self.extras.get("outlier_prob")
+        self.outlier_prob = None if outlier_prob is None else np.asarray(outlier_prob, float)
+
+    def __repr__(self):
+        n = "no" if self.points is None else len(self.points)
+        return (f"<CalibrationResult {self.method}: {n} points, "
+                f"{'converged' if self.converged else 'NOT converged'}>")
+
+    # -- the shared vocabulary ------------------------------------------------------
+    def covariance(self, identifiable=False):
+        """Parameter covariance: (8, 8) paper parameters, or (7, 7) identifiable ones."""
+        return (self.covariance_identifiable if identifiable else self._covariance).copy()
+
+    def point_covariance(self):
+        """Covariance of each reconstructed laser point, shape (N, 3, 3), mm^2.
+
+        The simultaneous method's joint covariance when it provides one, else
+        the first-order propagation of the parameter covariance (no pixel noise).
+        """
+        cov = self.extras.get("point_covariance")
+        if cov is not None:
+            return np.asarray(cov, float)
+        if self.points is None:
+            raise ValueError(f"this {self.method} result has no laser points")
+        from .camera import project
+
+        return linear_reconstruction(self.params, self.covariance_identifiable,
+                                     project(self.params, self.points), 0.0).covariance
+
+    def reconstruct(self, pixels, *, sigma_px=None):
+        """Triangulate new laser pixels with first-order uncertainty.
+
+        Parameters
+        ----------
+        pixels : array_like, shape (M, 2)
+            px.
+        sigma_px : float, optional
+            Pixel noise of the new pixels, px (0: parameter part only). Default:
+            the noise the calibration used, else the one it estimated, else 0.
+
+        Returns
+        -------
+        LinearReconstruction
+            Unpacks as ``mean (M, 3)`` mm, ``covariance (M, 3, 3)`` mm^2.
+        """
+        from ._validation import as_pixels
+
+        pixels = np.atleast_2d(as_pixels(pixels))
+        if sigma_px is None:
+            sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
+        if not (np.isfinite(sigma_px) and sigma_px >= 0):
+            raise ValueError(f"sigma_px must be a finite number >= 0 px, got {sigma_px!r}")
+        return linear_reconstruction(self.params, self.covariance_identifiable, pixels,
+                                     float(sigma_px))
 
     @property
     def std(self) -> np.ndarray:
         """Standard deviations of the eight parameters, shape (8,) (NaN if not estimated)."""
         with np.errstate(invalid="ignore"):
-            return np.sqrt(np.diag(self.covariance))
+            return np.sqrt(np.diag(self._covariance))
 
     @property
     def correlation(self) -> np.ndarray:
@@ -286,7 +246,32 @@ class CalibrationResult:
         sd = self.std
         with np.errstate(divide="ignore", invalid="ignore"):
             sd = np.where(sd > 0, sd, np.nan)
-            return self.covariance / np.outer(sd, sd)
+            return self._covariance / np.outer(sd, sd)
+
+    def summary_rows(self, *, prior=None, ratio_limit=0.5):
+        """One dict per paper parameter: ``name, mean, sd, q05, q95, prior_dominated``.
+
+        ``q05``/``q95`` is the normal 90 % interval. ``prior_dominated`` marks
+        parameters in a near-null direction of the data and, with ``prior``
+        (``{name: frozen distribution}``), those whose sd exceeds
+        ``ratio_limit`` x the prior sd (then ``prior_sd`` and ``sd_ratio`` are
+        added).
+        """
+        flagged = set()
+        for nd in getattr(self.identifiability, "null_directions", []) or []:
+            flagged.update(nd.get("components", {}))
+        rows = []
+        for name, v, s in zip(PARAM_NAMES, self.params.to_array(), self.std, strict=True):
+            row = {"name": name, "mean": float(v), "sd": float(s), "q05": float(v - Z90 * s),
+                   "q95": float(v + Z90 * s), "prior_dominated": name in flagged}
+            if prior is not None and name in prior:
+                psd = float(prior[name].std())
+                row["prior_sd"] = psd
+                row["sd_ratio"] = s / psd if psd > 0 else float("nan")
+                row["prior_dominated"] = bool(row["prior_dominated"]
+                                              or row["sd_ratio"] > ratio_limit)
+            rows.append(row)
+        return rows
 
     def summary(self) -> str:
         """Readable table: name, value, standard deviation; residuals; convergence; report."""
@@ -316,3 +301,113 @@ class CalibrationResult:
                             + (" ..." if flagged.size > 20 else "") if flagged.size else ""))
         lines.append(str(self.identifiability))
         return "\n".join(lines)
+
+    # -- persistence -------------------------------------------------------------------
+    def to_dict(self):
+        """Plain-data form (what :meth:`save` writes; arrays as lists).
+
+        Returns
+        -------
+        dict
+            ``format``, ``version``, ``method``, ``params`` (by name),
+            ``points``, ``covariance`` (8x8), ``covariance_identifiable`` (7x7),
+            ``residual_rms``, ``sigma_px_estimated``, ``n_residuals``,
+            ``n_unknowns``, ``converged``, ``message``, ``nfev``,
+            ``identifiability``, ``outlier_prob``, ``extras`` (array extras only).
+        """
+        from .io import to_jsonable
+
+        ident = self.identifiability
+        d = {"format": RESULT_FORMAT, "version": RESULT_VERSION, "method": self.method,
+             "params": self.params.as_dict(), "points": self.points,
+             "covariance": self._covariance, "covariance_identifiable":
+             self.covariance_identifiable, "residual_rms": self.residual_rms,
+             "sigma_px_estimated": self.sigma_px_estimated, "n_residuals": self.n_residuals,
+             "n_unknowns": self.n_unknowns, "converged": self.converged,
+             "message": self.message, "nfev": self.nfev,
+             "identifiability": None if ident is None else {
+                 "names": list(ident.names), "singular_values": ident.singular_values,
+                 "condition_number": ident.condition_number,
+                 "null_directions": ident.null_directions, "rtol": ident.rtol},
+             "outlier_prob": self.outlier_prob,
+             "extras": {k: self.extras[k] for k in _SAVED_EXTRAS
+                        if self.extras.get(k) is not None}}
+        return to_jsonable(d)
+
+    def save(self, path, *, overwrite=False):
+        """Write :meth:`to_dict` as JSON (atomically: a temporary file, then renamed).
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+        overwrite : bool, optional
+            Refuse to replace an existing file unless True.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        path = pathlib.Path(path)
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def from_dict(cls, d):
+        """Rebuild a result from :meth:`to_dict` output."""
+        def arr(x):
+            return None if x is None else np.array(x, dtype=float)
+
+        ident = d.get("identifiability")
+        if ident is not None:
+            ident = IdentifiabilityReport(
+                names=tuple(ident["names"]), singular_values=arr(ident["singular_values"]),
+                condition_number=float(ident["condition_number"]),
+                null_directions=ident["null_directions"], rtol=float(ident["rtol"]))
+        extras = {k: (float(v) if k == "sigma_px" else arr(v))
+                  for k, v in (d.get("extras") or {}).items()}
+        spe = d.get("sigma_px_estimated")
+        return cls(method=d["method"], params=SensorParams(**{n: float(d["params"][n])
+                                                             for n in PARAM_NAMES}),
+                   points=arr(d.get("points")), covariance=arr(d["covariance"]),
+                   covariance_identifiable=arr(d["covariance_identifiable"]),
+                   residual_rms={k: float(v) for k, v in d["residual_rms"].items()},
+                   sigma_px_estimated=None if spe is None else float(spe),
+                   n_residuals=d["n_residuals"], n_unknowns=d["n_unknowns"],
+                   converged=d["converged"], message=d["message"], nfev=d["nfev"],
+                   identifiability=ident, extras=extras, outlier_prob=arr(d.get("outlier_prob")))
+
+
+def load_result(path):
+    """Load a :class:`CalibrationResult` written by :meth:`CalibrationResult.save`.
+
+    Raises
+    ------
+    FileNotFoundError
+        No file at ``path``.
+    ValueError
+        Not a bayescal result file, a newer format version, or damaged
+        (the message names the file and what is wrong).
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no result file at {path}")
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path} is not a bayescal result file (not valid JSON: {exc})") \
+            from None
+    if not isinstance(d, dict) or d.get("format") != RESULT_FORMAT:
+        raise ValueError(f"{path} is not a bayescal result file (no \"format\": "
+                         f"\"{RESULT_FORMAT}\")")
+    if not isinstance(d.get("version"), int) or d["version"] > RESULT_VERSION:
+        raise ValueError(f"{path} has format version {d.get('version')!r}; this bayescal reads "
+                         f"up to {RESULT_VERSION}")
+    try:
+        return CalibrationResult.from_dict(d)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path} is a damaged bayescal result file ({type(exc).__name__}: "
+                         f"{exc})") from None

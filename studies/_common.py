@@ -1,32 +1,15 @@
 """Shared machinery of the paper-reproduction studies (fig7, fig8, fig9, identifiability, design).
 
-* :func:`parse_args`: the common command line (``--out``, ``--quick``, ``--seed``,
-  ``--workers``, ``--scheduler``, ``--force`` and a hidden ``--smoke``);
-* :func:`executor`: a ``concurrent.futures``-style executor -- inline for one
-  worker, local processes for several, a Dask ``distributed`` cluster with
-  ``--scheduler ADDRESS``;
-* :func:`run_trials`: map a trial function over specs, each trial seeded by
-  its own ``SeedSequence(seed).spawn(n)`` child, results in trial order (so the
-  numbers never depend on the executor);
+* the shared study runner of :mod:`bayescal.studyrun` (``parse_args``,
+  ``executor``, ``run_trials``, ``study_main``), re-exported;
 * :func:`sensor_for_trial`, :func:`three_methods`: one trial of the paper's
   comparison (sequential, simultaneous, Bayesian posterior mean);
-* :func:`OutputDir`, :func:`write_json`: result files that are never silently
-  overwritten (``--force`` to allow it);
 * :func:`run_room_study`: fig7 and fig8 are this function with two room sizes.
 
 Imports only the public API of bayescal (and ``bayescal.plotting``).
 """
 
 from __future__ import annotations
-
-import argparse
-import concurrent.futures
-import contextlib
-import json
-import pathlib
-import sys
-import time
-import warnings
 
 import numpy as np
 
@@ -45,194 +28,20 @@ SCENE_FLOOR_MM = 1.0
 PERTURB_SCALE = 0.5
 
 
-# --------------------------------------------------------------------------- command line
-def parse_args(description, argv=None, *, add_arguments=None):
-    """The common command line of every study.
-
-    Parameters
-    ----------
-    description : str
-        Help text (first line of the study's docstring).
-    argv : list of str, optional
-        Arguments (default ``sys.argv[1:]``).
-    add_arguments : callable, optional
-        ``add_arguments(parser)`` adds study-specific options.
-
-    Returns
-    -------
-    argparse.Namespace
-        With ``mode`` in :data:`MODES` (``smoke`` wins over ``quick``).
-    """
-    parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--out", required=True, help="output folder for the JSON and PNG files")
-    parser.add_argument("--quick", action="store_true",
-                        help="short version (about two minutes on 2 cores)")
-    parser.add_argument("--smoke", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="local worker processes (default: 2; 1 runs inline)")
-    parser.add_argument("--scheduler", default=None,
-                        help="address of a Dask distributed scheduler to run the trials on "
-                             "(needs the 'dask' extra)")
-    parser.add_argument("--force", action="store_true", help="overwrite existing result files")
-    if add_arguments is not None:
-        add_arguments(parser)
-    args = parser.parse_args(argv)
-    if args.seed < 0:
-        parser.error(f"--seed must be non-negative, got {args.seed}")
-    if args.workers < 1:
-        parser.error(f"--workers must be at least 1, got {args.workers}")
-    args.mode = "smoke" if args.smoke else ("quick" if args.quick else "full")
-    return args
+# the runner (command line, executors, seeded trials, output folder) is bayescal's own
+from bayescal.studyrun import (  # noqa: E402,F401  (re-exported for the study scripts)
+    OutputDir,
+    executor,
+    parse_args,
+    run_trials,
+    study_main,
+    write_json,
+)
 
 
-# --------------------------------------------------------------------------- executors
-class _InlineExecutor(concurrent.futures.Executor):
-    """Runs every call at submission, in this process (``--workers 1``)."""
-
-    def submit(self, fn, /, *args, **kwargs):
-        fut = concurrent.futures.Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # noqa: BLE001 (handed to the caller through the future)
-            fut.set_exception(exc)
-        return fut
-
-
-@contextlib.contextmanager
-def executor(*, workers=2, scheduler=None):
-    """A ``concurrent.futures.Executor`` for the trials.
-
-    Parameters
-    ----------
-    workers : int
-        Local processes (1 = inline, no process pool).
-    scheduler : str, optional
-        Address of a Dask ``distributed`` scheduler (e.g. ``tcp://host:8786``);
-        the trials then run on that cluster through its concurrent.futures
-        executor. The study modules are shipped to the workers by value, so the
-        workers need bayescal installed but not the ``studies/`` folder.
-
-    Yields
-    ------
-    concurrent.futures.Executor
-    """
-    if scheduler is not None:
-        try:
-            import cloudpickle
-            import distributed
-        except ImportError:
-            raise ValueError(f"--scheduler {scheduler!r} needs the 'dask' extra "
-                             "(pip install 'bayescal[dask]')") from None
-        cloudpickle.register_pickle_by_value(sys.modules[__name__])
-        client = distributed.Client(scheduler, set_as_default=False)
-        try:
-            yield client.get_executor(pure=False)
-        finally:
-            client.close()
-        return
-    if workers <= 1:
-        yield _InlineExecutor()
-        return
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers) as pool:
-        yield pool
-
-
-def _call(fn, spec, seed_seq):
-    """Run one trial with its own generator (top level so that it pickles)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return fn(spec, np.random.default_rng(seed_seq))
-
-
-def run_trials(fn, specs, *, seed, workers=2, scheduler=None, progress=True):
-    """Run ``fn(spec, rng)`` for every spec; results in the order of ``specs``.
-
-    Trial ``i`` gets ``np.random.default_rng(SeedSequence(seed).spawn(n)[i])``,
-    whatever executor runs it, so the results do not depend on ``workers`` or
-    ``scheduler``.
-
-    Parameters
-    ----------
-    fn : callable
-        ``fn(spec: dict, rng: numpy.random.Generator) -> dict`` (must pickle:
-        a module-level function).
-    specs : list of dict
-    seed : int
-    workers, scheduler
-        See :func:`executor`.
-
-    Returns
-    -------
-    list of dict
-    """
-    children = np.random.SeedSequence(seed).spawn(len(specs))
-    if scheduler is not None and fn.__module__ not in ("__main__", __name__):
-        import cloudpickle  # ship the study module to remote workers by value
-
-        cloudpickle.register_pickle_by_value(sys.modules[fn.__module__])
-    with executor(workers=workers, scheduler=scheduler) as ex:
-        futures = [ex.submit(_call, fn, s, c) for s, c in zip(specs, children, strict=True)]
-        out = []
-        for k, fut in enumerate(futures):
-            out.append(fut.result())
-            if progress:
-                print(f"  trial {k + 1}/{len(specs)} done", flush=True)
-    return out
-
-
-# --------------------------------------------------------------------------- output
 def to_jsonable(obj):
     """Convert numpy scalars/arrays to JSON types; NaN and infinities become None."""
     return bayescal.io.to_jsonable(obj, nonfinite="null")
-
-
-class OutputDir:
-    """The ``--out`` folder; refuses to overwrite result files unless ``force``.
-
-    Parameters
-    ----------
-    path : str or pathlib.Path
-    names : sequence of str
-        File names the study will write; checked before any work is done.
-    force : bool
-    """
-
-    def __init__(self, path, names, *, force=False):
-        self.path = pathlib.Path(path)
-        existing = [n for n in names if (self.path / n).exists()]
-        if existing and not force:
-            raise FileExistsError(f"--out {str(self.path)!r} already holds {existing}; "
-                                  "pass --force to overwrite them")
-        self.path.mkdir(parents=True, exist_ok=True)
-        self.names = tuple(names)
-
-    def __truediv__(self, name):
-        if name not in self.names:
-            raise ValueError(f"{name!r} is not among the declared result files {self.names}")
-        return self.path / name
-
-
-def write_json(path, data):
-    """Write ``data`` (made JSON-safe by :func:`to_jsonable`) with indentation."""
-    path = pathlib.Path(path)
-    path.write_text(json.dumps(to_jsonable(data), indent=1) + "\n")
-    return path
-
-
-def study_main(run, description, argv, files, *, add_arguments=None):
-    """Parse arguments, check the output folder, run ``run(args, out)``; exit code."""
-    args = parse_args(description, argv, add_arguments=add_arguments)
-    try:
-        out = OutputDir(args.out, files, force=args.force)
-    except FileExistsError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    t0 = time.perf_counter()
-    run(args, out)
-    print(f"done in {time.perf_counter() - t0:.0f} s; wrote "
-          + ", ".join(str(out.path / n) for n in files))
-    return 0
 
 
 # --------------------------------------------------------------------------- one trial

@@ -150,7 +150,7 @@ def _once(func):
 
 
 def _large_room_580():
-    """DESIGN fact 3's setting: 580 points, 5000 mm, 0.1 px, 5 % approximate points."""
+    """The setting of fact 3 (docs/model.md): 580 points, 5000 mm, 0.1 px, 5 % approximate."""
     ds = bc.simulate_room(range_mm=5000, n_points=580, sigma_px=0.1, approx_error=0.05,
                           approx_model="gaussian", rng=3)
     return ds, np.maximum(ds.sigma_scene, 1.0)

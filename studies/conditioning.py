@@ -1,6 +1,6 @@
 """Conditioning study: how much 3D error does one pixel of noise cause, against range?
 
-DESIGN fact 2. With the paper's sensor the laser points image on a thin ring
+(docs/model.md, "Conditioning".) With the paper's sensor the laser points image on a thin ring
 (radius ~70-95 px) whose radial width shrinks as the room grows, so a fixed
 pixel error turns into a depth error that grows roughly with range squared.
 
@@ -27,18 +27,17 @@ Imports only the public API of bayescal.
 
 Usage::
 
-    python studies/conditioning.py --out docs/img --seed 0
+    python studies/conditioning.py --out docs/img --seed 0 --force
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import pathlib
 
 import numpy as np
 
 import bayescal as bc
+from bayescal.studyrun import study_main
 
 SIGMA_PX = 1.0
 
@@ -128,24 +127,25 @@ def plot(rows, rhos, point_err, path):
     plt.close(fig)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="docs/img", help="output folder (default: docs/img)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    parser.add_argument("--n-rep", type=int, default=200,
-                        help="Monte-Carlo noise draws per room (default: 200)")
-    args = parser.parse_args(argv)
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+FILES = ("conditioning.png", "conditioning.json")
 
+
+def _options(parser):
+    parser.add_argument("--n-rep", type=int, default=None,
+                        help="Monte-Carlo noise draws per room (default: 200, quick: 40)")
+
+
+def run(args, out):
+    """Measure the conditioning rows and the single-point curve; write the figure and JSON."""
+    quick = args.mode != "full"
+    n_rep = args.n_rep or (40 if quick else 200)
     params = bc.SensorParams.paper()
-    ranges = np.arange(500.0, 6001.0, 250.0)
+    ranges = np.arange(500.0, 6001.0, 1000.0 if quick else 250.0)
     seeds = np.random.SeedSequence(args.seed).spawn(len(ranges) + 1)
-    rows = [room_row(params, r, np.random.default_rng(s), n_rep=args.n_rep)
+    rows = [room_row(params, r, np.random.default_rng(s), n_rep=n_rep)
             for r, s in zip(ranges, seeds[:-1], strict=True)]
-    rhos = np.linspace(300.0, 6000.0, 58)
+    rhos = np.linspace(300.0, 6000.0, 20 if quick else 58)
     point_err = point_curve(params, rhos, np.random.default_rng(seeds[-1]))
-
     print(f"{'range':>6} {'1st ord':>9} {'MC mean':>9} {'MC med':>8} {'missed':>7} "
           f"{'ring (px)':>15} {'span':>6}")
     for row in rows:
@@ -159,12 +159,15 @@ def main(argv=None):
         "description": "mean 3D triangulation error (mm) per 1 px of Gaussian pixel noise, "
                        "paper's sensor, true parameters; ring = pixel distance from (u0, v0)",
         "params": params.as_dict(), "sigma_px": SIGMA_PX, "seed": args.seed,
-        "n_rep": args.n_rep, "rooms": rows,
+        "n_rep": n_rep, "mode": args.mode, "rooms": rows,
         "single_point": {"rho_mm": rhos.tolist(), "linear_mean_error_mm": point_err},
     }
     (out / "conditioning.json").write_text(json.dumps(result, indent=1))
-    print(f"wrote {out / 'conditioning.png'} and {out / 'conditioning.json'}")
-    return 0
+
+
+def main(argv=None):
+    """Command line entry point (the shared study runner's options plus ``--n-rep``)."""
+    return study_main(run, __doc__.splitlines()[0], argv, FILES, add_arguments=_options)
 
 
 if __name__ == "__main__":

@@ -99,8 +99,8 @@ def design_trial(spec, rng):
     sig = np.maximum(ds.sigma_scene, 1.0)
     res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=spec["sigma_px"],
                                     sigma_scene=sig, prior=prior)
-    pc = res.extras["point_covariance"]
-    new_sd = predicted_new_point_sd(res.params, res.covariance, ds.pixels, spec["sigma_px"])
+    pc = res.point_covariance()
+    new_sd = predicted_new_point_sd(res.params, res.covariance(), ds.pixels, spec["sigma_px"])
     # actual error of a new scan: fresh pixel noise on the same points, triangulated
     new_pix = ds.pixels_true + r_sim.normal(0.0, spec["sigma_px"], ds.pixels.shape)
     out = {"vary": spec["vary"], "value": spec["value"], "range_mm": range_mm,
@@ -123,7 +123,7 @@ def design_trial(spec, rng):
         rec = post.reconstruct(ds.pixels)
         tr = np.sqrt(np.trace(rec.covariance, axis1=1, axis2=2))
         out["posterior_joint_sd_mm"] = float(np.median(np.sqrt(np.trace(
-            post.point_covariance, axis1=1, axis2=2))))
+            post.point_covariance(), axis1=1, axis2=2))))
         out["posterior_new_point_sd_mm"] = float(np.nanmedian(tr[rec.valid]))
         out["posterior_converged"] = bool(post.converged)
     return out

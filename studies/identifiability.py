@@ -1,7 +1,7 @@
 """Identifiability study: the phi/alpha ridge and what the priors do to it.
 
 ``phi``, ``alpha_u`` and ``alpha_v`` enter the model only through
-``gamma_u = alpha_u (xi + phi)`` and ``gamma_v = alpha_v (xi + phi)`` (DESIGN
+``gamma_u = alpha_u (xi + phi)`` and ``gamma_v = alpha_v (xi + phi)`` (docs/model.md,
 fact 1): the data fix the gammas, and the posterior slides along the ridge
 ``alpha_u (xi + phi) = const`` as far as the priors let it. This study samples
 the posterior of one small room twice -- with the default prior
@@ -64,7 +64,7 @@ def posterior_trial(spec, rng):
                                     sigma_scene=sig, prior=_prior(spec["prior"]))
     x = post.param_samples
     i_phi, i_au = bc.PARAM_NAMES.index("phi"), bc.PARAM_NAMES.index("alpha_u")
-    return {"prior": spec["name"], "samples": x, "summary": post.summary(),
+    return {"prior": spec["name"], "samples": x, "summary": post.summary_rows(),
             "summary_text": post.summary_text(), "converged": bool(post.converged),
             "corr_phi_alpha_u": float(np.corrcoef(x[:, i_phi], x[:, i_au])[0, 1]),
             "identifiability_text": str(sim.identifiability),

@@ -6,6 +6,7 @@ file, line and column, and that nothing was written.
 
 import json
 import os
+import pathlib
 import subprocess
 import sys
 
@@ -23,7 +24,8 @@ N_POINTS = 60
 
 def run(*args, cwd, env=None, timeout=600):
     """Run ``python -m bayescal ARGS`` in ``cwd``; returns the CompletedProcess."""
-    full_env = dict(os.environ, MPLBACKEND="agg", **(env or {}))
+    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
+    full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **(env or {}))
     return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
                           capture_output=True, text=True, env=full_env, timeout=timeout)
 
@@ -62,14 +64,18 @@ def test_help_on_every_command(tmp_path, cmd):
 
 def test_usage_errors_exit_2(tmp_path):
     assert run(cwd=tmp_path).returncode == 2
-    r = run("calibrate", "x.csv", "--method", "magic", cwd=tmp_path)
+    r = run("calibrate", "--method", "magic", cwd=tmp_path)
     assert r.returncode == 2 and "invalid choice: 'magic'" in r.stderr
     assert list(tmp_path.iterdir()) == []
 
 
 def test_console_script_entry_point_is_main():
-    from importlib.metadata import entry_points
+    from importlib.metadata import PackageNotFoundError, distribution, entry_points
 
+    try:
+        distribution("bayescal")
+    except PackageNotFoundError:
+        pytest.skip("bayescal is not installed (run from a source tree): no entry points")
     eps = [e for e in entry_points(group="console_scripts") if e.name == "bayescal"]
     assert [e.value for e in eps] == ["bayescal.cli:main"]
 
@@ -95,7 +101,8 @@ def test_simulate_writes_inputs_that_match_the_library(sim):
 
 def test_simulate_bad_option_writes_nothing(tmp_path):
     r = run("simulate", "--out", "s", "--range-mm", "-5", cwd=tmp_path)
-    assert r.returncode == 2 and "range_mm must be a finite positive number" in r.stderr
+    assert r.returncode == 2 and "--range-mm" in r.stderr
+    assert "'-5' is not a finite positive number" in r.stderr and len(r.stderr.splitlines()) == 1
     assert not (tmp_path / "s").exists()
 
 
@@ -174,11 +181,11 @@ def test_mismatched_pixel_and_point_files(tmp_path):
 def test_image_size_option_moves_the_limit(tmp_path):
     (tmp_path / "data.csv").write_text("u,v,x,y,z\n1500,300,1000,0,377\n")
     r = run("calibrate", "data.csv", "--image-size", "1600x1200", "--image-margin", "0",
-            "--sigma-scene", "x", "--out", "out", cwd=tmp_path)
-    # the pixel is now inside; the next check (the --sigma-scene value) fails instead
-    assert r.returncode == 2 and "--sigma-scene: could not read 'x'" in r.stderr
+            "--out", "out", cwd=tmp_path)
+    # the pixel is now inside; the next check (too few points) fails instead
+    assert r.returncode == 2 and "1 laser point(s); expected at least 5" in r.stderr
     r = run("calibrate", "data.csv", "--image-size", "800by600", "--out", "o", cwd=tmp_path)
-    assert r.returncode == 2 and "--image-size: image size must look like 800x600" in r.stderr
+    assert r.returncode == 2 and "--image-size: '800by600': expected WIDTHxHEIGHT" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
 
 
@@ -186,8 +193,11 @@ def test_image_size_option_moves_the_limit(tmp_path):
     (["--prior", "h=norm200"], r"expected NAME=DIST\(ARGS\)"),
     (["--prior", "height=norm(200, 20)"], r"unknown parameter 'height'"),
     (["--prior", "h=gaussian(200, 20)"], r"'gaussian' is not a scipy.stats continuous"),
-    (["--sigma-px", "-1"], r"--sigma-px must be a finite positive number"),
-    (["--sigma-scene", "1,2"], r"--sigma-scene must be 'infer'"),
+    (["--sigma-px", "-1"], r"--sigma-px: '-1' is not a finite positive number"),
+    (["--sigma-scene", "1,2"], r"--sigma-scene: '1,2': expected 'infer'"),
+    (["--sigma-scene", "x"], r"--sigma-scene: could not read 'x' as a number"),
+    (["--seed", "-3"], r"--seed: -3 is negative; expected an integer >= 0"),
+    (["--max-steps", "0"], r"--max-steps: 0 is not positive"),
     (["--sigma-scene", "inf,inf,inf"], r"gives no information on any axis"),
     (["--method", "sequential"], r"needs --calibration FILE"),
     (["--nominal", "missing.json"], r"missing.json: no such file"),
@@ -198,6 +208,7 @@ def test_bad_options_exit_2(sim, tmp_path, opts, match):
     import re
 
     assert re.search(match, r.stderr), r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -227,12 +238,13 @@ def _check_report(folder):
 
 def test_calibrate_sequential_end_to_end(seq_run):
     folder, r = seq_run
-    s = json.loads((folder / "summary.json").read_text())
-    assert s["method"] == "sequential" and s["converged"] is True
-    assert [row["name"] for row in s["rows"]] == list(bc.PARAM_NAMES)
-    assert np.shape(s["covariance"]) == (8, 8)
+    res = bc.load_result(folder / "result.json")
+    assert res.method == "sequential" and res.converged
+    rows = res.summary_rows()
+    assert [row["name"] for row in rows] == list(bc.PARAM_NAMES)
+    assert res.covariance().shape == (8, 8)
     # phi is held fixed by the sequential method: flagged, with sd 0
-    assert s["rows"][1]["prior_dominated"] and s["rows"][1]["sd"] == 0
+    assert rows[1]["prior_dominated"] and rows[1]["sd"] == 0
     md = _check_report(folder)
     assert "Accuracy against the simulation truth" in md
     assert "mean 3D error against the truth" in r.stdout
@@ -249,8 +261,7 @@ def test_reconstruct_matches_triangulation(seq_run, sim, tmp_path):
     assert r.returncode == 0, r.stderr
     t = bayescal.io.read_table(tmp_path / "rec" / "reconstruction.csv",
                                required=("x", "y", "z", "sd_x", "sd_y", "sd_z"))
-    s = json.loads((folder / "summary.json").read_text())
-    params = bc.SensorParams(**s["params"])
+    params = bc.load_result(folder / "result.json").params
     got = np.column_stack([t.columns[c] for c in "xyz"])
     np.testing.assert_allclose(got, bc.triangulate(params, pix), rtol=1e-12, atol=1e-9)
     assert np.all(t.columns["sd_x"] > 0)
@@ -263,7 +274,7 @@ def test_reconstruct_bad_pixels_and_bad_run(seq_run, tmp_path):
     r = run("reconstruct", "new.csv", "--run", folder, "--out", "rec", cwd=tmp_path)
     assert r.returncode == 2 and "line 3, column 'v': pixel v = -900" in r.stderr
     r = run("reconstruct", "new.csv", "--run", tmp_path, "--out", "rec", cwd=tmp_path)
-    assert r.returncode == 2 and "is not a calibration output folder" in r.stderr
+    assert r.returncode == 2 and "not a calibration output folder" in r.stderr
     assert not (tmp_path / "rec").exists()
 
 
@@ -289,10 +300,10 @@ def simul_run(sim):
 def test_calibrate_simultaneous_end_to_end(simul_run, sim):
     folder, r = simul_run
     assert r.returncode == 0, r.stderr
-    s = json.loads((folder / "summary.json").read_text())
-    assert s["method"] == "simultaneous" and s["converged"] is True
-    rows = {row["name"]: row for row in s["rows"]}
-    # DESIGN fact 1: phi, alpha_u, alpha_v are set by the prior, never by the data
+    res = bc.load_result(folder / "result.json")
+    assert res.method == "simultaneous" and res.converged
+    rows = {row["name"]: row for row in res.summary_rows()}
+    # phi, alpha_u, alpha_v are set by the prior, never by the data (docs/model.md)
     assert all(rows[n]["prior_dominated"] for n in ("phi", "alpha_u", "alpha_v"))
     assert not rows["u0"]["prior_dominated"]
     md = _check_report(folder)
@@ -300,12 +311,12 @@ def test_calibrate_simultaneous_end_to_end(simul_run, sim):
     # points.csv holds the jointly fitted points: they reproject onto the pixels (the
     # approximate points would miss them by several px at 5 % error)
     t = bayescal.io.read_table(folder / "points.csv", required=("x", "y", "z"))
-    pred = bc.project(bc.SensorParams(**s["params"]),
+    pred = bc.project(res.params,
                       np.column_stack([t.columns[c] for c in "xyz"]))
     pix = bayescal.io.load_laser_data(sim / "laser.csv").pixels
     assert np.sqrt(np.mean((pred - pix) ** 2)) < 3 * 0.1     # residual RMS below 3 sigma_px
     d = bayescal.io.load_laser_data(sim / "laser.csv")
-    approx_pred = bc.project(bc.SensorParams(**s["params"]), d.approx_points)
+    approx_pred = bc.project(res.params, d.approx_points)
     assert np.sqrt(np.mean((approx_pred - pix) ** 2)) > 3 * 0.1
 
 
@@ -319,9 +330,9 @@ def test_calibrate_simultaneous_split_files_agree(simul_run, sim, tmp_path):
     r = run("calibrate", "pix.csv", "--points", "pts.csv", "--sigma-px", "0.1", "--out", "a",
             cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    a = json.loads((tmp_path / "a" / "summary.json").read_text())["params"]
-    b = json.loads((simul_run[0] / "summary.json").read_text())["params"]
-    np.testing.assert_allclose(list(a.values()), list(b.values()), rtol=1e-10)
+    a = bc.load_result(tmp_path / "a" / "result.json").params.to_array()
+    b = bc.load_result(simul_run[0] / "result.json").params.to_array()
+    np.testing.assert_allclose(a, b, rtol=1e-10)
 
 
 @pytest.fixture(scope="module")
@@ -334,11 +345,11 @@ def bayes_run(sim):
 
 def test_bayes_unconverged_is_exit_1_with_outputs(bayes_run):
     folder, r = bayes_run
-    # 300 steps cannot hold 50 autocorrelation times (tau ~ 30 at best; DESIGN fact 5)
+    # 300 steps cannot hold 50 autocorrelation times (tau ~ 30 at best; docs/bayes.md)
     assert r.returncode == 1, r.stderr
     assert "did not converge" in r.stderr and "--allow-unconverged" in r.stderr
-    s = json.loads((folder / "summary.json").read_text())
-    assert s["method"] == "bayes" and s["converged"] is False
+    s = json.loads((folder / "run.json").read_text())
+    assert s["method"] == "bayes" and not bc.load_posterior(folder / "posterior.npz").converged
     assert (folder / "posterior.npz").is_file() and (folder / "corner.png").is_file()
     _check_report(folder)
 
@@ -384,7 +395,10 @@ def test_study_runs_the_script_with_out_and_quick(tmp_path):
     env = {"BAYESCAL_STUDIES_DIR": str(tmp_path / "studies")}
     r = run("study", "echo", "--out", "o", "--quick", cwd=tmp_path, env=env)
     assert r.returncode == 0, r.stderr
-    assert (tmp_path / "o" / "args.txt").read_text() == "--out o --quick"
+    args = (tmp_path / "o" / "args.txt").read_text().split()
+    assert args[args.index("--seed") + 1] == "0" and args[args.index("--workers") + 1] == "2"
+    assert "--quick" in args and "--scheduler" not in args
+    assert not [p for p in tmp_path.iterdir() if "bayescal-tmp" in p.name]
     r = run("study", "echo", "--out", "x--fail", cwd=tmp_path, env=env)
     assert r.returncode == 1 and "study echo exited with code 3" in r.stderr
 
@@ -392,7 +406,7 @@ def test_study_runs_the_script_with_out_and_quick(tmp_path):
 def test_default_studies_dir_is_beside_the_package():
     from pathlib import Path
 
-    from bayescal.cli import studies_dir
+    from bayescal.studyrun import studies_dir
 
     env = os.environ.pop("BAYESCAL_STUDIES_DIR", None)
     try:
@@ -457,30 +471,37 @@ def test_linear_reconstruction_matches_monte_carlo(rng):
 
 
 def test_write_report_without_optional_parts(tmp_path):
-    """A report from a bare summary (no points, no posterior) still has the table."""
+    """A report from a result without points or truth still has the table and the image."""
+    from bayescal.io import LaserData, Table
     from bayescal.report import write_report
+    from bayescal.results import CalibrationResult, identifiability_report
 
     p = bc.SensorParams.paper()
-    rows = [{"name": n, "mean": v, "sd": 0.1, "q05": v - 0.2, "q95": v + 0.2,
-             "prior_dominated": n == "phi"} for n, v in p.as_dict().items()]
-    summary = {"method": "simultaneous", "converged": False, "params": p.as_dict(),
-               "rows": rows}
-    files = write_report(tmp_path, summary, pixels=bc.project(p, [[1000.0, 0, 0]] * 3))
+    res = CalibrationResult(
+        method="sequential", params=p, points=None, covariance=np.diag(np.full(8, 0.01)),
+        covariance_identifiable=np.eye(7) * 0.01, residual_rms={}, sigma_px_estimated=None,
+        n_residuals=10, n_unknowns=8, converged=False, message="stopped", nfev=1,
+        identifiability=identifiability_report(np.diag([1, 0, 1, 1, 1, 1, 1, 1.0]),
+                                               bc.PARAM_NAMES))
+    pix = bc.project(p, [[1000.0, 0, 0]] * 3)
+    table = Table(tmp_path / "d.csv", {}, np.arange(3), "csv")
+    data = LaserData(pix, None, None, None, table, None)
+    files, acc = write_report(tmp_path, res, {"method": "sequential"}, data=data)
     html = files["html"].read_text()
     assert "NOT CONVERGED" in html and "<tr class='flag'><td>phi</td>" in html
-    assert set(files) == {"image", "markdown", "html"}
+    assert "Warning." in html                          # the solver did not converge
+    assert set(files) == {"image", "markdown", "html"} and acc is None
 
 
 def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
-    from bayescal.cli import _priors, build_parser
+    from bayescal.jobs import _nominal_and_prior
+    from bayescal.options import prior_option
     from bayescal.priors import default_prior
 
     design = bc.SensorParams.paper().replace(h=150.0)
     (tmp_path / "design.json").write_text(json.dumps({"params": design.as_dict()}))
-    args = build_parser().parse_args(["calibrate", "d.csv", "--nominal",
-                                      str(tmp_path / "design.json"),
-                                      "--prior", "beta=uniform(0.9, 0.3)"])
-    nominal, prior = _priors(args)
+    nominal, prior = _nominal_and_prior(tmp_path / "design.json",
+                                        [prior_option("beta=uniform(0.9, 0.3)")])
     assert nominal == design
     assert prior["beta"].dist.name == "uniform"
     np.testing.assert_allclose(prior["beta"].support(), (0.9, 1.2), rtol=1e-15)
@@ -490,13 +511,13 @@ def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
             assert (prior[name].mean(), prior[name].std()) == (ref[name].mean(), ref[name].std())
     assert prior["h"].mean() == 150.0
     # no option at all: the library's defaults are used untouched (prior=None)
-    assert _priors(build_parser().parse_args(["calibrate", "d.csv"]))[1] is None
+    assert _nominal_and_prior(None, [])[1] is None
 
 
-def test_result_summary_flags_prior_dominated_parameters():
+def test_result_rows_flag_prior_dominated_parameters():
     """sd_ratio > PRIOR_DOMINATED_RATIO, or a near-null direction, marks a parameter."""
     from bayescal.priors import default_prior
-    from bayescal.report import result_summary
+    from bayescal.report import parameter_rows
     from bayescal.results import CalibrationResult, identifiability_report
 
     p = bc.SensorParams.paper()
@@ -510,9 +531,164 @@ def test_result_summary_flags_prior_dominated_parameters():
         covariance_identifiable=np.eye(7), residual_rms={}, sigma_px_estimated=None,
         n_residuals=10, n_unknowns=8, converged=True, message="ok", nfev=1,
         identifiability=identifiability_report(J, bc.PARAM_NAMES))
-    rows = {r["name"]: r for r in result_summary(res, prior=prior)["rows"]}
+    rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
     flagged = sorted(n for n, r in rows.items() if r["prior_dominated"])
     assert flagged == ["beta", "phi", "xi"]
     np.testing.assert_allclose(rows["h"]["sd_ratio"], 0.4, rtol=1e-12)
     np.testing.assert_allclose(rows["u0"]["q95"] - rows["u0"]["q05"], 2 * 1.6448536 * sd[4],
                                rtol=1e-7)
+
+
+# -- every bad input, one behaviour (in process: fast) -----------------------------------
+
+def _main(args, capsys):
+    from bayescal.cli import main
+
+    rc = main([str(a) for a in args])
+    return rc, capsys.readouterr()
+
+
+def _room_csv(path, n=12, azimuth_span=2 * np.pi, dup=None):
+    p = bc.SensorParams.paper()
+    az = np.linspace(0, azimuth_span, n, endpoint=False)
+    pts = np.column_stack([2000 * np.cos(az), 2000 * np.sin(az), np.full(n, -300.0)])
+    pix = bc.project(p, pts)
+    rows = [f"{u!r},{v!r},{x!r},{y!r},{z!r}"
+            for (u, v), (x, y, z) in zip(pix.tolist(), pts.tolist(), strict=True)]
+    if dup is not None:
+        rows.append(rows[dup])
+    path.write_text("u,v,x,y,z\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("n, span, match", [
+    (1, 2 * np.pi, r"1 laser point\(s\); expected at least 5"),
+    (3, 2 * np.pi, r"3 laser point\(s\); expected at least 5"),
+    (12, 1e-9, r"span [0-9.e-]+ degrees of azimuth; expected at least 10"),
+])
+def test_degenerate_geometry_exit_2(tmp_path, capsys, monkeypatch, n, span, match):
+    import re
+
+    monkeypatch.chdir(tmp_path)
+    _room_csv(tmp_path / "d.csv", n=n, azimuth_span=span)
+    rc, cap = _main(["calibrate", "d.csv", "--sigma-px", "0.1", "--sigma-scene", "50",
+                     "--out", "out"], capsys)
+    assert rc == 2 and re.search(match, cap.err), cap.err
+    assert len(cap.err.strip().splitlines()) == 1 and "d.csv" in cap.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv"]
+
+
+def test_duplicate_rows_warn_with_their_lines(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    lines = (sim / "laser.csv").read_text().splitlines()
+    first = next(i for i, t in enumerate(lines) if t and not t.startswith("#")) + 1   # header
+    lines.append(lines[first + 3])                          # copy the 4th data row to the end
+    (tmp_path / "d.csv").write_text("\n".join(lines) + "\n")
+    rc, cap = _main(["calibrate", "d.csv", "--out", "out"], capsys)
+    assert rc == 0, cap.err
+    assert f"exact duplicate lines {first + 4} and {len(lines)}" in cap.err
+
+
+def test_truth_of_the_wrong_length_exit_2(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    truth = json.loads((sim / "truth.json").read_text())
+    truth["points"] = truth["points"][:-1]
+    (tmp_path / "t.json").write_text(json.dumps(truth))
+    rc, cap = _main(["calibrate", sim / "laser.csv", "--truth", "t.json", "--out", "o"], capsys)
+    assert rc == 2 and f"it has {N_POINTS - 1} points but the data have {N_POINTS}" in cap.err
+    assert not (tmp_path / "o").exists()
+
+
+def test_read_only_output_folder_exit_2(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        rc, cap = _main(["simulate", "--out", ro / "sim", "--n-points", 10], capsys)
+    finally:
+        ro.chmod(0o755)
+    assert rc == 2 and "is not a writable folder" in cap.err
+    assert list(ro.iterdir()) == []
+
+
+@pytest.mark.parametrize("damage", ["truncate", "foreign"])
+def test_damaged_posterior_file_exit_2(bayes_run, tmp_path, capsys, monkeypatch, damage):
+    import shutil
+
+    monkeypatch.chdir(tmp_path)
+    run_dir = tmp_path / "run"
+    shutil.copytree(bayes_run[0], run_dir)
+    post = run_dir / "posterior.npz"
+    if damage == "truncate":
+        post.write_bytes(post.read_bytes()[: post.stat().st_size // 2])
+    else:
+        np.savez(post, something=np.zeros(3))
+    (tmp_path / "new.csv").write_text("u,v\n450,300\n")
+    rc, cap = _main(["reconstruct", "new.csv", "--run", run_dir, "--out", "rec"], capsys)
+    assert rc == 2 and "posterior.npz is not a readable bayescal posterior file" in cap.err
+    assert len(cap.err.strip().splitlines()) == 1 and not (tmp_path / "rec").exists()
+
+
+def test_interrupt_inside_a_job_exit_130_nothing_left(sim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bc, "calibrate_simultaneous", interrupted)
+    rc, cap = _main(["calibrate", sim / "laser.csv", "--out", "new/deeper/o"], capsys)
+    assert rc == 130 and cap.err.strip() == "bayescal: interrupted; nothing was written"
+    assert list(tmp_path.iterdir()) == []                  # no folder, no staging, no parents
+
+
+def test_sigint_during_sampling_exit_130_nothing_left(sim, tmp_path):
+    """A real Ctrl-C (SIGINT) while emcee runs: one line, no traceback, nothing written."""
+    import signal
+    import time
+
+    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
+    env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root)
+    proc = subprocess.Popen([sys.executable, "-m", "bayescal", "calibrate", sim / "laser.csv",
+                             "--method", "bayes", "--no-progress", "--out", "o"], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not any("bayescal-tmp" in p.name
+                                             for p in tmp_path.iterdir()):
+        time.sleep(0.1)
+    time.sleep(2.0)                                        # inside the sampler by now
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["bayescal: interrupted; nothing was written"], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_force_never_replaces_a_file_bayescal_did_not_write(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert _main(["simulate", "--out", "o", "--n-points", 10], capsys)[0] == 0
+    manifest = json.loads((tmp_path / "o" / MANIFEST).read_text())
+    manifest["files"].remove("truth.json")                 # as if the user had put it there
+    (tmp_path / "o" / MANIFEST).write_text(json.dumps(manifest))
+    (tmp_path / "o" / "truth.json").write_text("mine")
+    rc, cap = _main(["simulate", "--out", "o", "--n-points", 12, "--force"], capsys)
+    assert rc == 2 and "truth.json, which bayescal did not write" in cap.err
+    assert (tmp_path / "o" / "truth.json").read_text() == "mine"
+    assert len(bayescal.io.load_laser_data(tmp_path / "o" / "laser.npz").pixels) == 10
+    assert not [p for p in tmp_path.iterdir() if "bayescal-tmp" in p.name]
+
+
+def test_version_and_help_without_markup(tmp_path, capsys):
+    from bayescal.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        from bayescal.cli import build_parser
+
+        build_parser().parse_args(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"bayescal {bc.__version__}"
+    for cmd in ("simulate", "calibrate", "reconstruct", "report", "study", "demo"):
+        assert main([cmd, "--help"]) == 0
+        text = capsys.readouterr().out
+        assert "%%" not in text and "`" not in text, cmd
+        if cmd == "study":
+            assert "fig9" in text and "conditioning" in text

@@ -47,3 +47,58 @@ def test_plot_room_bad_view(room):
 def test_savefig_writes_png(room, tmp_path):
     path = savefig(plot_image(room.pixels), tmp_path / "sub" / "image.png")
     assert path.exists() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# -- uncertainty figures -------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def fit(room):
+    res = bc.calibrate_simultaneous(room.pixels, room.approx_points, sigma_px=0.1,
+                                    sigma_scene=np.maximum(room.sigma_scene, 1.0))
+    return res
+
+
+def test_reconstruction_ellipses_are_capped_and_frame_is_radial(room, fit):
+    from bayescal.plotting import plot_reconstruction_ellipses, radial_tangential_sd
+
+    fig = plot_reconstruction_ellipses(fit.points, fit.point_covariance(),
+                                       approx_points=room.approx_points, truth=room.points,
+                                       max_ellipses=25)
+    from matplotlib.patches import Ellipse
+
+    n = sum(isinstance(p, Ellipse) for p in fig.axes[0].patches)
+    assert 0 < n <= 25 and len(fig.axes) == 3
+    assert "(mm)" in fig.axes[1].get_ylabel()
+    plt.close(fig)
+    # an isotropic covariance has the same sd in every frame; a radial one only radially
+    pts = np.array([[1000.0, 0, 0], [0, 1000.0, 0]])
+    cov = np.zeros((2, 3, 3))
+    cov[0, 0, 0] = cov[1, 1, 1] = 4.0                     # 2 mm along each point's radius
+    sd, _ = radial_tangential_sd(pts, cov)
+    np.testing.assert_allclose(sd, [[2, 0, 0], [2, 0, 0]], atol=1e-12)
+
+
+def test_least_squares_residuals_are_standard_normal(room, fit):
+    """With the right noise, leverage-standardized residuals have RMS about 1.
+
+    240 values: the RMS of N(0, 1) has sd about 1/sqrt(2 * 240) = 0.046; the neglected
+    leverage of the 7 global parameters lowers it by about 7 / 240 / 2 = 1.5 %. The band
+    0.8-1.15 is > 4 sd wide on each side (false failure < 1e-4).
+    """
+    from bayescal.residuals import least_squares_residuals
+    from bayescal.plotting import plot_pixel_residuals
+
+    raw, z = least_squares_residuals(fit, room.pixels, 0.1, np.maximum(room.sigma_scene, 1.0))
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert 0.8 < rms < 1.15, rms
+    fig = plot_pixel_residuals(room.pixels, z, raw=raw, title="t")
+    assert "RMS per coordinate" in fig.axes[1].get_title()
+    plt.close(fig)
+
+
+def test_validation_figures(tmp_path):
+    from bayescal.plotting.validation import plot_sbc
+
+    counts = np.full((8, 10), 10)
+    plot_sbc(counts, np.zeros(8), 100, tmp_path / "sbc.png")
+    assert (tmp_path / "sbc.png").stat().st_size > 1000

@@ -41,7 +41,7 @@ def test_save_load_round_trip_is_lossless(post, tmp_path):
         np.testing.assert_array_equal(getattr(back, name), getattr(post, name), err_msg=name)
     np.testing.assert_array_equal(back.sigma_scene, post.sigma_scene)
     assert back.summary_text() == post.summary_text()
-    for r_back, r in zip(back.summary(), post.summary(), strict=True):    # tau of phi: NaN
+    for r_back, r in zip(back.summary_rows(), post.summary_rows(), strict=True):  # tau of phi: NaN
         assert r_back.keys() == r.keys()
         for k in r:
             np.testing.assert_array_equal(r_back[k], r[k], err_msg=f"{r['name']} {k}")
@@ -88,7 +88,7 @@ def test_summary_flags_the_non_identifiable_parameters(post):
     """phi, alpha_u, alpha_v: the data fix only gamma = alpha (xi + phi), so their spread is
     the phi/alpha ridge of the priors (sd ratio ~0.57 > 0.5); u0, v0 are pinned by the
     pixels (sd ratio ~0.004)."""
-    rows = {r["name"]: r for r in post.summary()}
+    rows = {r["name"]: r for r in post.summary_rows()}
     assert list(rows) == list(bc.PARAM_NAMES)
     for name in ("phi", "alpha_u", "alpha_v"):
         assert rows[name]["prior_dominated"] and not rows[name]["identifiable"], name
@@ -111,7 +111,7 @@ def test_covariances_are_symmetric_positive_semidefinite(post):
         # the Laplace 8x8 is J C J^T: symmetric up to rounding of the triple product
         np.testing.assert_allclose(cov, cov.T, rtol=0, atol=1e-12 * np.max(np.abs(cov)))
         assert np.min(np.linalg.eigvalsh(cov)) > -1e-10 * np.max(np.linalg.eigvalsh(cov))
-    pc = post.point_covariance
+    pc = post.point_covariance()
     assert pc.shape == (100, 3, 3)
     np.testing.assert_allclose(pc, np.swapaxes(pc, 1, 2), rtol=1e-12, atol=0)
     assert post.intervals(0.9).shape == (8, 2)

@@ -150,3 +150,68 @@ def test_convergence_error_carries_result():
     err = bc.ConvergenceError("did not converge", res)
     assert isinstance(err, RuntimeError) and err.result is res
     assert "NOT CONVERGED" in res.summary()
+
+
+# -- the shared vocabulary ---------------------------------------------------------------
+
+def _simultaneous_result():
+    import bayescal as bc
+
+    ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.2, approx_error=0.01, rng=2)
+    return ds, bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                         sigma_scene=np.maximum(ds.sigma_scene, 1.0))
+
+
+def test_calibration_result_vocabulary_and_round_trip(tmp_path):
+    import bayescal as bc
+
+    ds, res = _simultaneous_result()
+    assert res.covariance().shape == (8, 8) and res.covariance(identifiable=True).shape == (7, 7)
+    assert res.points.shape == (60, 3) and res.point_covariance().shape == (60, 3, 3)
+    mean, cov = res.reconstruct(ds.pixels[:4], sigma_px=0.0)
+    np.testing.assert_allclose(mean, bc.triangulate(res.params, ds.pixels[:4]), rtol=1e-12)
+    assert cov.shape == (4, 3, 3) and isinstance(res.summary(), str)
+    d = res.to_dict()
+    assert d["format"] == "bayescal-result" and d["version"] == 1
+    back = bc.load_result(res.save(tmp_path / "r.json"))
+    np.testing.assert_array_equal(back.covariance(), res.covariance())
+    np.testing.assert_array_equal(back.points, res.points)
+    np.testing.assert_array_equal(back.point_covariance(), res.point_covariance())
+    assert back.params == res.params and back.summary() == res.summary()
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        res.save(tmp_path / "r.json")
+
+
+@pytest.mark.parametrize("text, match", [
+    ("{not json", "not valid JSON"),
+    ('{"format": "other"}', "not a bayescal result file"),
+    ('{"format": "bayescal-result", "version": 99}', "format version 99"),
+    ('{"format": "bayescal-result", "version": 1, "method": "x"}', "damaged"),
+])
+def test_load_result_refuses_foreign_files(tmp_path, text, match):
+    import bayescal as bc
+
+    (tmp_path / "r.json").write_text(text)
+    with pytest.raises(ValueError, match=match):
+        bc.load_result(tmp_path / "r.json")
+
+
+def test_posterior_speaks_the_same_vocabulary():
+    import bayescal as bc
+
+    assert isinstance(bc.Posterior.params, property) and isinstance(bc.Posterior.points, property)
+    for name in ("covariance", "point_covariance", "reconstruct", "summary", "to_dict", "save"):
+        assert callable(getattr(bc.Posterior, name)) and callable(getattr(bc.CalibrationResult,
+                                                                           name))
+
+
+def test_to_inference_data():
+    pytest.importorskip("arviz")
+    import bayescal as bc
+
+    ds = bc.simulate_room(range_mm=1000, n_points=20, sigma_px=0.5, approx_error=0.01, rng=1)
+    post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.5,
+                               sigma_scene=np.maximum(ds.sigma_scene, 1.0), rng=1, max_steps=400,
+                               progress=False)
+    idata = post.to_inference_data()
+    assert idata.posterior["h"].shape == (1, post.n_samples)

@@ -112,7 +112,7 @@ def test_design_study(tmp_path):
     res = _run("design", tmp_path, "--workers", "1")
     rows = {(r["vary"], r["value"]): r for r in res["rows"]}
     small, large = rows[("range_mm", 1000.0)], rows[("range_mm", 5000.0)]
-    # DESIGN fact 2: conditioning falls fast with range
+    # docs/model.md, fact 2: conditioning falls fast with range
     assert large["new_point_sd_mm"] > 5 * small["new_point_sd_mm"]
     assert (tmp_path / "design.png").is_file()
 
@@ -131,3 +131,92 @@ def test_predicted_new_point_sd_matches_pixel_noise_alone():
     e = bc.triangulate(p, ds.pixels + rng.normal(0.0, 0.01, (4000, 20, 2))) - ds.points
     mc = np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=0)) / 0.01
     np.testing.assert_allclose(sd0, mc, rtol=0.15)
+
+
+_TINY_STUDY = '''"""tiny: a study whose trials report the process that ran them."""
+import json
+import os
+
+from bayescal.studyrun import run_trials, study_main
+
+
+def trial(spec, rng):
+    return {"k": spec["k"], "x": float(rng.random()), "pid": os.getpid()}
+
+
+def run(args, out):
+    res = run_trials(trial, [{"k": k} for k in range(6)], seed=args.seed, workers=args.workers,
+                     scheduler=args.scheduler, progress=False)
+    (out / "tiny.json").write_text(json.dumps(res))
+
+
+if __name__ == "__main__":
+    raise SystemExit(study_main(run, "tiny", None, ("tiny.json",)))
+'''
+
+
+def _free_port():
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_bayescal_study_passes_scheduler_to_a_real_dask_cluster(tmp_path):
+    """``bayescal study NAME --scheduler ADDRESS`` on a ``dask scheduler`` + 2 ``dask worker``.
+
+    About 25 s (the processes start), so in the slow set; skipped when they cannot start.
+    """
+    import os
+    import shutil
+    import subprocess
+    import time
+
+    pytest.importorskip("distributed")
+    dask = shutil.which("dask") or str(pathlib.Path(sys.executable).parent / "dask")
+    if not pathlib.Path(dask).exists():
+        pytest.skip("no dask command")
+    (tmp_path / "studies").mkdir()
+    (tmp_path / "studies" / "tiny.py").write_text(_TINY_STUDY)
+    root = str(pathlib.Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=root, BAYESCAL_STUDIES_DIR=str(tmp_path / "studies"),
+               MPLBACKEND="agg")
+    addr = f"tcp://127.0.0.1:{_free_port()}"
+    log = open(tmp_path / "dask.log", "w")
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
+                               addr.rsplit(":", 1)[1], "--no-dashboard"], env=env,
+                              stdout=log, stderr=log)]
+    try:
+        time.sleep(3)
+        for _ in range(2):
+            procs.append(subprocess.Popen([dask, "worker", addr, "--nthreads", "1",
+                                           "--no-dashboard"], env=env, stdout=log, stderr=log,
+                                          cwd=tmp_path))
+        time.sleep(5)
+        if any(p.poll() is not None for p in procs):
+            pytest.skip("the dask scheduler or a worker could not start")
+        cmd = [sys.executable, "-m", "bayescal", "study", "tiny", "--scheduler", addr,
+               "--seed", "3"]
+        r = subprocess.run(cmd + ["--out", "dask"], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        inline = subprocess.run(cmd[:5] + ["--workers", "1", "--seed", "3", "--out", "inline"],
+                                cwd=tmp_path, env=env, capture_output=True, text=True,
+                                timeout=120)
+        assert inline.returncode == 0, inline.stderr
+    finally:
+        for p in procs[::-1]:
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        log.close()
+    on_dask = json.loads((tmp_path / "dask" / "tiny.json").read_text())
+    local = json.loads((tmp_path / "inline" / "tiny.json").read_text())
+    assert [t["x"] for t in on_dask] == [t["x"] for t in local]      # same seeds, same numbers
+    pids = {t["pid"] for t in on_dask}
+    assert os.getpid() not in pids and len(pids) >= 1               # ran in the worker processes

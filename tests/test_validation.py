@@ -1,4 +1,4 @@
-"""Statistical validation of the Bayesian posterior (DESIGN section 5, rungs 3 and 4).
+"""Statistical validation of the Bayesian posterior (docs/validation.md, rungs 3 and 4).
 
 * Rung 3: the collapsed sampler (:func:`bayescal.sample_posterior`) against a
   long brute-force emcee run over the full joint (:func:`bayescal.sampling.sample_joint`,
@@ -8,15 +8,12 @@
   replications, chi-square(3) of the points' normalised squared errors, and
   simulation-based calibration with truths drawn from the prior.
 
-The replication code lives in ``studies/coverage.py`` (loaded here by path) so
+The replication code lives in :mod:`bayescal.validation` so
 the test and the study run the same experiment. Every slow test is marked
 ``@pytest.mark.slow`` (``make test-slow``); the fast ``*_smoke`` tests run the
 same pipelines on tiny settings in a few seconds each.
 """
 
-import importlib.util
-import pathlib
-import sys
 import warnings
 
 import numpy as np
@@ -24,16 +21,9 @@ import pytest
 from scipy import stats
 
 import bayescal as bc
+from bayescal import validation as cov
 from bayescal.laser import cone_point_theta
 from bayescal.sampling import sample_joint
-
-_SPEC = importlib.util.spec_from_file_location(
-    "bayescal_study_coverage", pathlib.Path(__file__).parents[1] / "studies" / "coverage.py")
-cov = importlib.util.module_from_spec(_SPEC)
-# registered before it runs, so that its functions pickle by reference into the worker
-# processes of run_coverage / run_sbc
-sys.modules[_SPEC.name] = cov
-_SPEC.loader.exec_module(cov)
 
 WORKERS = 2
 
@@ -129,7 +119,7 @@ def test_coverage_fixed_scene(room):
     levels = list(cov.LEVELS)
     # 7 parameters x 2 levels binomial checks + 2 pooled point checks + NSE mean + NSE K-S
     # = 18 checks; Bonferroni at a family false-failure rate of 1 %: each at 0.01 / 18.
-    # (The DESIGN band is each check's own 99 % band, 84-95 % and 90.5-98.5 % at M = 200;
+    # (The 99 % binomial band is each check's own 99 % band, 84-95 % and 90.5-98.5 % at M = 200;
     # the study reports against that one. 14 checks at 1 % each would fail ~1 run in 8.)
     #
     # The priors' centres are drawn around the truth in each replication
@@ -201,7 +191,7 @@ def test_expected_z_sd_one_dimensional():
 
 
 def test_binomial_band_matches_design():
-    # DESIGN section 5: M = 200, 90 % intervals cover 84-95 %, 95 % intervals 90.5-98.5 %
+    # the validation ladder: M = 200, 90 % intervals cover 84-95 %, 95 % intervals 90.5-98.5 %
     np.testing.assert_allclose(cov.binomial_band(200, 0.9), (0.84, 0.95), atol=1e-12)
     np.testing.assert_allclose(cov.binomial_band(200, 0.95), (0.905, 0.985), atol=1e-12)
 
@@ -218,7 +208,7 @@ def test_sbc_ranks_uniform():
     counts, chi2, p = cov.summarize_sbc(out["ranks"])
     assert counts.sum(axis=1).tolist() == [N_SIMS] * 8
     # 8 chi-square(9) tests, Bonferroni at a family false-failure rate of 1 %: each below
-    # the 1 - 0.01/8 quantile, 27.29 (the DESIGN's 21.67 is one test's 99 % quantile;
+    # the 1 - 0.01/8 quantile, 27.29 (the plain 21.67 is one test's 99 % quantile;
     # the study reports against it)
     limit = stats.chi2(cov.SBC_BINS - 1).ppf(1 - 0.01 / 8)
     names = list(bc.IDENTIFIABLE_NAMES) + ["phi"]

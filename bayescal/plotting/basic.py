@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_pixels, as_points
+from .._validation import as_pixels, as_points
 
-__all__ = ["plot_image", "plot_room", "plot_corner", "plot_residuals", "plot_reconstruction",
-           "savefig"]
+__all__ = ["plot_image", "plot_room", "plot_residuals", "plot_reconstruction", "savefig"]
 
 
 def _axes(ax, projection=None, figsize=(6, 5)):
@@ -54,7 +53,13 @@ def plot_image(pixels, *, params=None, image_size=(800, 600), ax=None, label="la
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title("Image plane")
+    n_ok = int(np.isfinite(pixels).all(axis=1).sum())
+    title = f"{n_ok} laser pixels in the {w} x {h} px image"
+    if params is not None and n_ok:
+        r = np.hypot(pixels[:, 0] - params.u0, pixels[:, 1] - params.v0)
+        title += (f"\nring radius {np.nanmin(r):.1f} to {np.nanmax(r):.1f} px about the "
+                  f"principal point ({params.u0:.1f}, {params.v0:.1f}) px")
+    ax.set_title(title, fontsize="medium")
     ax.legend(loc="upper right", fontsize="small")
     return fig
 
@@ -126,48 +131,6 @@ def savefig(fig, path, *, dpi=120):
     return path
 
 
-def plot_corner(posterior, *, identifiable=False, truth=None, params=None, **corner_kw):
-    """Corner plot of the posterior's parameters (with the ``corner`` package).
-
-    Parameters
-    ----------
-    posterior : Posterior
-    identifiable : bool, optional
-        Plot the 7 identifiable coordinates instead of the 8 paper parameters.
-    truth : SensorParams, optional
-        Drawn as lines (e.g. the simulation's true parameters).
-    params : sequence of str, optional
-        Subset of names to plot (default all).
-    **corner_kw
-        Passed to :func:`corner.corner`.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-    """
-    import corner
-
-    from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
-
-    names = IDENTIFIABLE_NAMES if identifiable else PARAM_NAMES
-    x = posterior.theta_samples if identifiable else posterior.param_samples
-    truths = None
-    if truth is not None:
-        truths = truth.to_identifiable() if identifiable else truth.to_array()
-    if params is not None:
-        unknown = [p for p in params if p not in names]
-        if unknown:
-            raise ValueError(f"params {unknown} not among {names}")
-        idx = [names.index(p) for p in params]
-        names = [names[i] for i in idx]
-        x = x[:, idx]
-        truths = None if truths is None else truths[idx]
-    kw = {"labels": list(names), "show_titles": True, "title_fmt": ".3g",
-          "quantiles": [0.05, 0.5, 0.95], "truths": truths, "truth_color": "tab:red"}
-    kw.update(corner_kw)
-    return corner.corner(x, **kw)
-
-
 def plot_residuals(pixels, predicted, *, scale=200.0, ax=None):
     """Pixel residuals in the image as arrows (magnified by ``scale``).
 
@@ -194,17 +157,17 @@ def plot_residuals(pixels, predicted, *, scale=200.0, ax=None):
     ax.quiver(predicted[:, 0], predicted[:, 1], d[:, 0] * scale, d[:, 1] * scale,
               angles="xy", scale_units="xy", scale=1, width=0.002, color="tab:blue")
     ax.scatter(predicted[:, 0], predicted[:, 1], s=2, c="k")
-    rms = float(np.sqrt(np.nanmean(np.sum(d**2, axis=1))))
+    rms = float(np.sqrt(np.nanmean(d**2)))
     ax.set_aspect("equal")
     ax.invert_yaxis()
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
-    ax.set_title(f"Pixel residuals x{scale:g} (RMS {rms:.3g} px)")
+    ax.set_title(f"Pixel residuals x{scale:.3g} (RMS per coordinate {rms:.3g} px)")
     return fig
 
 
-def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0, every=1,
-                        ax=None):
+def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0, every=None,
+                        max_ellipses=60, ax=None):
     """Top view of reconstructed points with their uncertainty ellipses.
 
     Parameters
@@ -219,7 +182,9 @@ def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0
     n_sigma : float, optional
         Ellipse size in standard deviations (2 holds ~86 % in 2-D).
     every : int, optional
-        Draw one ellipse in ``every`` points.
+        Draw one ellipse in ``every`` points (default: enough to draw at most
+        ``max_ellipses``, so that the ellipses never merge into a fur).
+    max_ellipses : int, optional
 
     Returns
     -------
@@ -236,6 +201,8 @@ def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0
     if walls is not None:
         for seg in np.asarray(walls):
             ax.plot(seg[:, 0], seg[:, 1], "k-", lw=1)
+    if every is None:
+        every = int(np.ceil(len(mean) / max(int(max_ellipses), 1)))
     for i in range(0, len(mean), max(int(every), 1)):
         c = covariance[i, :2, :2]
         if not np.all(np.isfinite(c)):
@@ -247,12 +214,12 @@ def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0
                              color="tab:blue"))
     if truth is not None:
         truth = as_points(truth, "truth")
-        ax.scatter(truth[:, 0], truth[:, 1], s=3, c="tab:red", label="true points", zorder=3)
-    ax.scatter(mean[:, 0], mean[:, 1], s=3, c="tab:blue", label="reconstructed", zorder=2)
+        ax.scatter(truth[:, 0], truth[:, 1], s=4, c="tab:red", label="true points", zorder=4)
+    ax.scatter(mean[:, 0], mean[:, 1], s=2, c="tab:blue", label="reconstructed", zorder=3)
     ax.plot(0, 0, "k^")
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"Reconstruction, {n_sigma:g}-sigma ellipses")
+    ax.set_title(f"Reconstruction, {n_sigma:.3g}-sigma ellipses (one in {every})")
     ax.legend(loc="upper right", fontsize="small")
     return fig

@@ -1,0 +1,47 @@
+"""Exceptions and exit codes shared by the command line, the readers and the jobs.
+
+This module imports nothing from bayescal, so every other module may import it
+without closing an import cycle.
+
+Exit codes of the ``bayescal`` command: :data:`EXIT_OK` (0) success,
+:data:`EXIT_FAILED` (1) the job ran but failed or did not converge,
+:data:`EXIT_USAGE` (2) bad usage or bad input (nothing written),
+:data:`EXIT_INTERRUPTED` (130) interrupted by Ctrl-C (nothing left behind).
+"""
+
+from __future__ import annotations
+
+__all__ = ["UsageError", "Failure", "InputError", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE",
+           "EXIT_INTERRUPTED"]
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+class UsageError(Exception):
+    """Bad usage or bad input found before any output is written: exit code 2."""
+
+
+class Failure(Exception):
+    """The job ran but failed (e.g. no convergence): exit code 1."""
+
+
+class InputError(ValueError):
+    """A data file is unreadable or inconsistent (the command line exits with code 2).
+
+    Attributes
+    ----------
+    path : str
+        The file.
+    line : int or None
+        1-based line in a CSV file (the header is line 1), or 0-based index in
+        an NPZ array.
+    column : str or None
+        The column (CSV) or array (NPZ) name.
+    """
+
+    def __init__(self, message, *, path=None, line=None, column=None):
+        super().__init__(message)
+        self.path, self.line, self.column = path, line, column

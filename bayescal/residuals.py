@@ -1,0 +1,143 @@
+"""Residual checks behind the residual figures and the report's warnings.
+
+* :func:`posterior_residuals`: standardized pixel residuals under posterior
+  draws, ``(pixel - project(params_s, point_s)) / sigma_px_s`` for joint draws
+  ``s``. In a linear-Gaussian model these are exactly N(0, 1) when the model
+  is right (the fit's shrinkage ``sigma^2 (I - H)`` plus the posterior spread
+  ``sigma^2 H`` add back to ``sigma^2 I``), so the N(0, 1) overlay is the right
+  reference. Projecting the posterior-mean points with the posterior-mean
+  parameters is *not* a fit and must not be used.
+* :func:`least_squares_residuals`: pixel residuals at the least-squares
+  solution divided by ``sigma_px * sqrt(1 - n_unknowns / n_residuals)``, the
+  degrees-of-freedom factor by which a fit's residuals are smaller than the
+  noise (the same factor the estimated pixel noise uses).
+* :func:`noise_warnings`: plain-language warnings when the pixel noise the
+  least squares estimated is far from the one used, or when few degrees of
+  freedom are left.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import resolve_rng
+from .camera import project
+from .parameters import SensorParams
+
+__all__ = ["posterior_residuals", "least_squares_residuals", "noise_warnings",
+           "NOISE_RATIO_WARN"]
+
+#: estimated / used pixel noise outside [1 / NOISE_RATIO_WARN, NOISE_RATIO_WARN] is reported
+NOISE_RATIO_WARN = 2.0
+
+
+def posterior_residuals(posterior, *, n_draws=100, rng=None):
+    """Standardized pixel residuals under joint posterior draws.
+
+    Parameters
+    ----------
+    posterior : Posterior
+    n_draws : int, optional
+        Draws used (evenly thinned).
+    rng : numpy.random.Generator, int or None
+        Unused for evenly thinned draws; accepted for symmetry.
+
+    Returns
+    -------
+    ndarray, shape (n_draws, N, 2)
+        Dimensionless (residual / pixel noise of the draw).
+    """
+    resolve_rng(rng)
+    S = posterior.n_samples
+    idx = np.unique(np.linspace(0, S - 1, min(int(n_draws), S)).round().astype(int))
+    sig = posterior._sigma_px_samples()[idx]
+    out = np.empty((len(idx),) + posterior.pixels.shape)
+    for k, s in enumerate(idx):
+        p = SensorParams.from_array(posterior.param_samples[s])
+        out[k] = (posterior.pixels - project(p, posterior.point_samples[s])) / sig[k]
+    return out
+
+
+def _projection_jacobian(params, points):
+    """d project / d point, shape (N, 2, 3), px/mm (central differences, 1e-3 mm)."""
+    J = np.empty(points.shape[:1] + (2, 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-3
+        J[:, :, k] = (project(params, points + d) - project(params, points - d)) / 2e-3
+    return J
+
+
+def _cone_tangent(params, points):
+    """Orthonormal tangent basis of the laser cone at each point, shape (N, 3, 2)."""
+    rho = np.maximum(np.hypot(points[:, 0], points[:, 1]), 1e-9)
+    cb, sb = np.cos(params.beta), np.sin(params.beta)
+    n = np.column_stack([cb * points[:, 0] / rho, cb * points[:, 1] / rho,
+                         np.full(len(points), -sb)])
+    t1 = np.column_stack([-points[:, 1] / rho, points[:, 0] / rho, np.zeros(len(points))])
+    t2 = np.cross(n, t1)
+    return np.stack([t1, t2 / np.linalg.norm(t2, axis=1, keepdims=True)], axis=2)
+
+
+def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
+    """Pixel residuals of a least-squares result, each divided by its own expected sd.
+
+    A fit absorbs part of the noise: the residual of a pixel coordinate has
+    variance ``sigma_px^2 (1 - h)`` with ``h`` its leverage. For the
+    simultaneous method each point moves on the laser cone (2 unknowns) under
+    2 pixel rows and 3 scene rows, so ``h`` is the diagonal of the local hat
+    matrix ``A (A^T A)^-1 A^T`` with ``A = [P T / sigma_px; T / sigma_scene]``
+    (``P = d project / d point``, ``T`` the cone's tangent basis); the 7 global
+    parameters' share (7 of the residuals) is neglected. Without the scene sds
+    the global factor ``sqrt(1 - n_unknowns / n_residuals)`` is used.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        With ``points`` (N, 3).
+    pixels : ndarray, shape (N, 2)
+        px.
+    sigma_px : float
+        Pixel noise used (or estimated), px.
+    sigma_scene : ndarray, shape (N, 3), optional
+        Scene sds of the approximate points, mm (``inf`` = no information).
+
+    Returns
+    -------
+    raw : ndarray, shape (N, 2)
+        px.
+    z : ndarray, shape (N, 2)
+        Dimensionless; about N(0, 1) for a correct model.
+    """
+    raw = np.asarray(pixels, float) - project(result.params, result.points)
+    if sigma_scene is None:
+        frac = 1.0 - result.n_unknowns / max(result.n_residuals, 1)
+        return raw, raw / (sigma_px * np.sqrt(max(frac, 1e-12)))
+    T = _cone_tangent(result.params, result.points)
+    top = _projection_jacobian(result.params, result.points) @ T / sigma_px      # (N, 2, 2)
+    bottom = T / np.broadcast_to(np.asarray(sigma_scene, float), result.points.shape)[..., None]
+    A = np.concatenate([top, bottom], axis=1)                                    # (N, 5, 2)
+    info = np.swapaxes(A, 1, 2) @ A
+    h = np.einsum("nij,njk,nik->ni", top, np.linalg.inv(info), top)
+    var = sigma_px**2 * np.clip(1.0 - h, 1e-4, 1.0)
+    return raw, raw / np.sqrt(var)
+
+
+def noise_warnings(result, sigma_px_used):
+    """Warnings about the pixel noise of a least-squares result (list of str)."""
+    out = []
+    est = result.sigma_px_estimated
+    if est is not None and sigma_px_used:
+        ratio = est / sigma_px_used
+        if not (1 / NOISE_RATIO_WARN <= ratio <= NOISE_RATIO_WARN):
+            out.append(f"The pixel noise estimated from the residuals ({est:.3g} px) is "
+                       f"{ratio:.3g} x the one given ({sigma_px_used:.3g} px): the model does "
+                       "not fit these data at the stated noise, so the sds and intervals below "
+                       "are not reliable (check the pixel noise, the scene sds and outliers).")
+    dof = result.n_residuals - result.n_unknowns
+    if dof < 10:
+        out.append(f"Only {dof} degrees of freedom are left ({result.n_residuals} residuals, "
+                   f"{result.n_unknowns} unknowns): the noise estimate and the sds are rough.")
+    if not result.converged:
+        out.append(f"The {result.method} solver did not converge: {result.message}.")
+    return out
