@@ -84,8 +84,8 @@ def _sigma_used(result, info):
 
 
 def _residual_figure(result, info, pixels):
-    from .residuals import least_squares_residuals, posterior_residuals
     from .plotting import plot_pixel_residuals
+    from .residuals import least_squares_residuals, posterior_residuals
 
     if _is_posterior(result):
         z = posterior_residuals(result, n_draws=100)

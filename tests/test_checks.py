@@ -72,7 +72,7 @@ def test_pixel_noise_that_the_data_cannot_fix_is_refused(room):
 
 def _laplace_draws(ds, res, S, rng):
     """Draws of (params, points) from the MAP's Laplace approximation."""
-    a = rng.multivariate_normal(res.params.to_array(), res.covariance, S)
+    a = rng.multivariate_normal(res.params.to_array(), res.covariance(), S)
     L = np.linalg.cholesky(res.extras["point_covariance"] + 1e-9 * np.eye(3))
     P = res.points + np.einsum("nij,snj->sni", L, rng.standard_normal((S,) + res.points.shape))
     return a, P

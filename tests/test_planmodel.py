@@ -153,7 +153,7 @@ def test_map_recovers_truth_on_noise_free_data(range_mm):
     np.testing.assert_allclose(res.extras["walls"][:, 0], plan.distances, rtol=1e-9)
     W = plan.n_walls
     assert res.extras["wall_covariance"].shape == (2 * W, 2 * W)
-    assert res.covariance.shape == (8, 8)
+    assert res.covariance().shape == (8, 8)
     assert res.extras["point_covariance"].shape == (580, 3, 3)
     # the Laplace covariance cannot exceed the prior: the data only add information
     assert np.all(np.diag(res.extras["wall_covariance"]) < plan.param_sd**2)

@@ -85,8 +85,8 @@ def test_least_squares_residuals_are_standard_normal(room, fit):
     leverage of the 7 global parameters lowers it by about 7 / 240 / 2 = 1.5 %. The band
     0.8-1.15 is > 4 sd wide on each side (false failure < 1e-4).
     """
-    from bayescal.residuals import least_squares_residuals
     from bayescal.plotting import plot_pixel_residuals
+    from bayescal.residuals import least_squares_residuals
 
     raw, z = least_squares_residuals(fit, room.pixels, 0.1, np.maximum(room.sigma_scene, 1.0))
     rms = float(np.sqrt(np.mean(z**2)))
