@@ -26,8 +26,12 @@ demo: $(VENV)/.installed
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
 
-## test-slow: the long statistical validation (coverage, SBC, Monte-Carlo re-fits)
-test-slow: $(VENV)/.installed-test
+$(VENV)/.installed-slow: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test,nuts]"
+	touch $@ $(VENV)/.installed-test $(VENV)/.installed
+
+## test-slow: the long statistical validation (coverage, SBC, Monte-Carlo re-fits, NUTS)
+test-slow: $(VENV)/.installed-slow
 	$(BIN)/python -m pytest -q -m slow
 
 ## bench: timings written to docs/performance.md
