@@ -28,16 +28,11 @@ from .floorplan import FloorPlan
 from .parameters import from_identifiable
 from .priors import Prior
 
-__all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "PLAN_TUNE", "SCENE_REQUIRED"]
+__all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
 
 #: default of ``sigma_scene`` in :func:`bayescal.sample_posterior`: required with
 #: approximate points, absent with a plan
 SCENE_REQUIRED = object()
-
-#: draws per round of the proposal fit for the plan's 7 + 2W (+1) globals: more than the
-#: generic default, since the independence proposal must fit in ~21 dimensions
-#: (``docs/floorplan.md`` section 8)
-PLAN_TUNE = 300
 
 
 def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_walkers=None,
@@ -59,7 +54,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
     progress, on_unconverged, n_point_mh, n_iter :
         As in :func:`bayescal.sample_posterior`.
     n_tune : int, optional
-        Steps per round of the proposal tuning (default :data:`PLAN_TUNE`).
+        Steps per round of the proposal tuning (default: the sampler's).
     sigma_scene : not accepted
         The plan carries its own sds; giving it is a ``TypeError``.
 
@@ -96,7 +91,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter,
-                           n_tune=PLAN_TUNE if n_tune is None else n_tune)
+                           n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
     diag = run["diagnostics"]
     if not diag.converged:
