@@ -214,6 +214,24 @@ class FloorPlan:
     def param_names(self):
         return tuple(f"{p}_{k}" for k, s in enumerate(self.surfaces) for p in s.param_names)
 
+    def to_arrays(self):
+        """The plan as plain arrays (for ``.npz`` files): ``segments`` (W, 2, 2),
+        ``distance_sd`` (W,), ``angle_sd`` (W,), ``corner_tol`` ()."""
+        gaps = np.linalg.norm(self.segments[:, 1] - np.roll(self.segments[:, 0], -1, axis=0),
+                              axis=-1)
+        return {"segments": self.segments.copy(), "distance_sd": self.distance_sd.copy(),
+                "angle_sd": self.angle_sd.copy(), "corner_tol": np.array(float(gaps.max()))}
+
+    @classmethod
+    def from_arrays(cls, arrays):
+        """Inverse of :meth:`to_arrays` (``arrays``: a mapping with its keys)."""
+        try:
+            return cls(arrays["segments"], distance_sd=arrays["distance_sd"],
+                       angle_sd=arrays["angle_sd"], corner_tol=float(arrays["corner_tol"]))
+        except KeyError as e:
+            raise ValueError(f"floor-plan arrays lack the key {e.args[0]!r} (need segments, "
+                             f"distance_sd, angle_sd, corner_tol)") from None
+
     def corner_azimuths(self):
         """Azimuths (rad) of the plan's corners, shape (W,): corner k joins walls k and k+1."""
         return corner_azimuths(self.distances, self.angles)

@@ -198,14 +198,19 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
     for _ in range(3):
         # re-pick each point's candidate walls around the MAP's corners (the plan's may be
         # far off at shallow corners) and re-solve if any point changed its pair
-        before = lik.wall_pair.copy()
+        before, corner = lik.wall_pair.copy(), lik.corner.copy()
         lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
                    g[8:].reshape(-1, 2))
         if lik.infer_px:
             lik.set_reference_noise(sigma_px=sig)
         if np.array_equal(before, lik.wall_pair) and not lik.infer_px:
             break
-        sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
+        try:
+            sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
+        except ValueError:
+            # a re-picked pair misses some point's MAP azimuth: keep the pairs that fitted
+            lik.wall_pair, lik.corner = before, corner
+            break
         g, t = sol.g, sol.t
         if np.array_equal(before, lik.wall_pair):
             break
@@ -296,6 +301,9 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
                            max_iter=max_iter)
     res = _make_result(lik, sol, absolute_sigma, raise_on_failure)
     res.extras["likelihood"] = lik
+    # typical horizontal range of the laser points: where a finite-range ring radius would
+    # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)
+    lik.reference_range = float(np.median(np.hypot(res.points[:, 0], res.points[:, 1])))
     keep = np.r_[0:7, 8:len(sol.g)]
     psi = sol.g[keep]
     cov = sol.cov[np.ix_(keep, keep)]

@@ -75,6 +75,9 @@ class PlanLikelihood:
         The two candidate walls ``(j, j + 1)`` of each point.
     corner : ndarray of int, shape (N,)
         The corner ``j`` between them.
+    reference_range : float or None
+        Median horizontal range (mm) of the MAP's points, set by
+        :func:`bayescal.plan_lsq.plan_map_start` (``docs/floorplan.md`` section 8).
     """
 
     def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None):
@@ -92,6 +95,7 @@ class PlanLikelihood:
         ap = SensorParams.paper() if azimuth_params is None else azimuth_params
         self.assign(ap)
         self._prior_mu = plan.param_nominal
+        self.reference_range = None
         self._prior_sd = plan.param_sd
 
     def assign(self, params, walls=None):

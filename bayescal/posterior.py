@@ -97,8 +97,11 @@ class Posterior:
                  approx_points, sigma_px, sigma_scene, prior, tau, ess, n_steps, burn,
                  n_walkers, converged, acceptance, imh_acceptance, map_result=None,
                  laplace_cov8=None, laplace_cov7=None, map_params=None, map_points=None,
-                 map_point_covariance=None, diagnostics=None):
+                 map_point_covariance=None, diagnostics=None, wall_samples=None, plan=None):
         self.diagnostics = diagnostics      # ChainDiagnostics (tau, ESS, rule) or None
+        # floor-plan posteriors only: (S, W, 2) draws of (d_k mm, a_k rad) and the FloorPlan
+        self.wall_samples = None if wall_samples is None else np.asarray(wall_samples, float)
+        self.plan = plan
         self.param_samples = np.asarray(param_samples, float)
         self.point_samples = np.asarray(point_samples, float)
         self.noise_samples = np.asarray(noise_samples, float).reshape(len(self.param_samples), -1)
@@ -439,6 +442,10 @@ class Posterior:
         arrays = {k: getattr(self, k) for k in _ARRAYS}
         if self.sigma_scene is not None:
             arrays["sigma_scene"] = np.asarray(self.sigma_scene, float)
+        if self.wall_samples is not None:
+            arrays["wall_samples"] = self.wall_samples
+        if self.plan is not None:
+            arrays.update({"plan_" + k: v for k, v in self.plan.to_arrays().items()})
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(path, meta_json=np.array(json.dumps(meta)), **arrays)
         return path
@@ -469,6 +476,8 @@ def load_posterior(path):
                              f"reads up to {FORMAT_VERSION}")
         arrays = {k: f[k] for k in _ARRAYS}
         sigma_scene = f["sigma_scene"] if "sigma_scene" in f else None
+        wall_samples = f["wall_samples"] if "wall_samples" in f else None
+        plan_arrays = {k[5:]: f[k] for k in f.files if k.startswith("plan_")}
     prior = {n: getattr(stats, d)(*args, **kwds) for n, (d, args, kwds) in meta["prior"].items()}
     return Posterior(
         param_samples=arrays["param_samples"], point_samples=arrays["point_samples"],
@@ -482,5 +491,15 @@ def load_posterior(path):
         map_params=arrays["map_params"], map_points=arrays["map_points"],
         map_point_covariance=arrays["map_point_covariance"],
         diagnostics=None if meta.get("diagnostics") is None else
-        ChainDiagnostics.from_dict(meta["diagnostics"]))
+        ChainDiagnostics.from_dict(meta["diagnostics"]), wall_samples=wall_samples,
+        plan=_load_plan(plan_arrays))
+
+
+def _load_plan(arrays):
+    """The FloorPlan saved with a floor-plan posterior, or None."""
+    if not arrays:
+        return None
+    from .floorplan import FloorPlan
+
+    return FloorPlan.from_arrays(arrays)
 

@@ -34,9 +34,11 @@ import numpy as np
 
 from ._validation import resolve_rng
 from .diagnostics import ChainDiagnostics, integrated_time
+from .floorplan import FloorPlan
 from .model import NOISE_BOUNDS, LaserLikelihood, draw_points
 from .moves import IndependenceMove
 from .parameters import from_identifiable
+from .plan_sampling import SCENE_REQUIRED, sample_plan_posterior
 from .priors import Prior
 from .sampler_steps import (
     CollapsedTarget,
@@ -180,8 +182,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
-def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rng=None,
-                     n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
+def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
+                     rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None):
     """Sample the posterior over the 8 sensor parameters and every laser point.
@@ -250,6 +252,12 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene, prior=None
     >>> post.param_samples.shape[1], post.point_samples.shape[1:]
     (8, (60, 3))
     """
+    if isinstance(approx_points, FloorPlan):          # walls in place of points
+        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
+        return sample_plan_posterior(pixels, approx_points, **kw)
+    if sigma_scene is SCENE_REQUIRED:
+        raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
+                        "(needed with approximate points)")
     from .simultaneous import calibrate_simultaneous
 
     if on_unconverged not in ("warn", "raise"):
