@@ -13,8 +13,8 @@ Stage-1 unknowns, in this order::
 
 ``phi`` is held fixed (``fix_phi``): the pixels depend on ``phi``, ``alpha_u``
 and ``alpha_v`` only through ``gamma_u = alpha_u (xi + phi)`` and
-``gamma_v = alpha_v (xi + phi)``, so fitting all three is degenerate (DESIGN
-fact 1). The pattern pose maps the world frame W of the measured points to
+``gamma_v = alpha_v (xi + phi)``, so fitting all three is degenerate (fact 1,
+``docs/model.md``, "Measured facts"). The pattern pose maps the world frame W of the measured points to
 frame C: ``P_C = R P_W + t`` with ``R = rotation_matrix(angles)``.
 """
 

@@ -279,7 +279,8 @@ def test_reconstruction_improves_with_less_noise():
     ds_big = _room(sigma_px=1.0, rng=9, n_points=100)
     e_big = bc.reconstruction_error(big.points, ds_big.points)
     e_small = bc.reconstruction_error(small.points, ds_small.points)
-    # errors scale ~ linearly with pixel noise (DESIGN fact 2: ~41 mm per px at 1000 mm)
+    # errors scale ~ linearly with pixel noise (fact 2 of docs/model.md,
+    # "Measured facts": ~41 mm mean error per px of noise at 1000 mm)
     assert e_small < 0.05 * e_big and 5.0 < e_big < 150.0
 
 
