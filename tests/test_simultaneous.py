@@ -160,10 +160,11 @@ def test_covariance_matches_the_spread_of_refits_fast():
 
 @pytest.mark.slow
 def test_covariance_matches_the_spread_of_refits_within_20_percent():
-    """Rung 2 (docs/calibration.md, "Checks of the least squares"): 200 re-fits; predicted sd within 20 % of the observed spread for every
-    identifiable parameter and every point's 3 eigen-directions (sample-sd noise at 200
-    draws is 5 %, so 20 % is 4 standard errors: FFR ~6e-5 per check before the 7 + 300
-    checks; measured ratios 0.93-1.11 for theta, 0.86-1.15 over the points)."""
+    """Rung 2 (docs/calibration.md, "Checks of the least squares"): 200 re-fits; predicted sd
+    within 20 % of the observed spread for every identifiable parameter and every point's 3
+    eigen-directions (sample-sd noise at 200 draws is 5 %, so 20 % is 4 standard errors:
+    FFR ~6e-5 per check before the 7 + 300 checks; measured ratios 0.93-1.11 for theta,
+    0.86-1.15 over the points)."""
     thetas, covs, points, pcovs, _, _ = _refits(200, seed0=1000)
     pred = np.sqrt(np.diag(covs.mean(axis=0)))
     np.testing.assert_allclose(thetas.std(axis=0, ddof=1), pred, rtol=0.2)
