@@ -25,7 +25,7 @@ from .results import (
 )
 from .sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .scenes import CalibrationData, Dataset, room_walls, simulate_room
-from .sequential import calibrate_sequential
+from .sequential import calibrate_sequential, sequential_residuals
 from .simultaneous import calibrate_simultaneous
 
 __version__ = "0.1.0"
@@ -46,6 +46,7 @@ __all__ = [
     "FloorPlan",
     "CalibrationData",
     "calibrate_sequential",
+    "sequential_residuals",
     "CalibrationResult",
     "ConvergenceError",
     "IdentifiabilityReport",

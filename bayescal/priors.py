@@ -5,9 +5,10 @@ A prior is one :mod:`scipy.stats` frozen distribution per paper parameter
 the design value plus or minus a tolerance (:func:`default_prior`); any of them
 is overridden by name.
 
-The data see only ``theta = (xi, gamma_u, gamma_v, u0, v0, h, beta)`` (DESIGN
-fact 1). The sampler therefore works with the prior of ``theta`` with ``phi``
-integrated out::
+The data see only ``theta = (xi, gamma_u, gamma_v, u0, v0, h, beta)``: scaling
+``alpha_u``, ``alpha_v`` by ``k`` with ``phi' = (xi + phi) / k - xi`` changes no
+pixel (fact 1, ``docs/model.md``, "Measured facts"). The sampler therefore
+works with the prior of ``theta`` with ``phi`` integrated out::
 
     p(theta) = p_xi p_u0 p_v0 p_h p_beta
                * int p_phi(phi) p_au(gu / s) p_av(gv / s) / s^2 dphi,   s = xi + phi

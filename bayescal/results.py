@@ -64,7 +64,10 @@ __all__ = [
 RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
-_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene")
+_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene",
+                 # sequential: what its residual plot needs (bayescal.sequential_residuals)
+                 "stage1_residuals_px", "stage1_residuals_std", "stage2_residuals_mm",
+                 "stage2_residuals_std", "sigma_px_used")
 
 
 class ConvergenceError(RuntimeError):
@@ -367,7 +370,7 @@ class CalibrationResult:
                 names=tuple(ident["names"]), singular_values=arr(ident["singular_values"]),
                 condition_number=float(ident["condition_number"]),
                 null_directions=ident["null_directions"], rtol=float(ident["rtol"]))
-        extras = {k: (float(v) if k == "sigma_px" else arr(v))
+        extras = {k: (float(v) if k in ("sigma_px", "sigma_px_used") else arr(v))
                   for k, v in (d.get("extras") or {}).items()}
         spe = d.get("sigma_px_estimated")
         return cls(method=d["method"], params=SensorParams(**{n: float(d["params"][n])

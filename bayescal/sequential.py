@@ -4,8 +4,11 @@ Stage 1 (sec. II-A) fits the camera intrinsics and the pose of the calibration
 patterns to the measured pattern points and their pixels; stage 2 (sec. II-B)
 back-projects the laser pixels seen on the calibration planes with the stage-1
 camera, intersects the rays with those planes and fits the laser cone (eq. 3)
-or plane (eq. 2) to the 3D points so obtained. ``docs/calibration.md``
-describes the method, the covariance and what is and is not included in it.
+or plane (eq. 2) to the 3D points so obtained. The residuals, Jacobians and
+covariance propagation of the stages are in :mod:`bayescal.sequential_stages`;
+this module checks the input, runs the stages and assembles the result.
+``docs/calibration.md`` describes the method, the covariance and what is and is
+not included in it.
 
 Stage-1 unknowns, in this order::
 
@@ -13,20 +16,19 @@ Stage-1 unknowns, in this order::
 
 ``phi`` is held fixed (``fix_phi``): the pixels depend on ``phi``, ``alpha_u``
 and ``alpha_v`` only through ``gamma_u = alpha_u (xi + phi)`` and
-``gamma_v = alpha_v (xi + phi)``, so fitting all three is degenerate (DESIGN
-fact 1). The pattern pose maps the world frame W of the measured points to
-frame C: ``P_C = R P_W + t`` with ``R = rotation_matrix(angles)``.
+``gamma_v = alpha_v (xi + phi)``, so fitting all three is degenerate (fact 1,
+``docs/model.md``, "Measured facts"). The pattern pose maps the world frame W
+of the measured points to frame C: ``P_C = R P_W + t`` with ``R = rotation_matrix(angles)``.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from scipy.linalg import solve_triangular
-from scipy.optimize import least_squares
+from typing import NamedTuple
 
-from ._validation import as_finite_array, as_pixels, check_positive, resolve_rng
-from .camera import backproject_theta, project_theta
-from .laser import cone_distance, triangulate, triangulate_plane
+import numpy as np
+
+from ._validation import as_finite_array, as_pixels, check_positive
+from .laser import triangulate, triangulate_plane
 from .parameters import PARAM_NAMES, SensorParams
 from .results import (
     CalibrationResult,
@@ -36,151 +38,29 @@ from .results import (
     identifiable_to_paper_jacobian,
 )
 from .scenes import CalibrationData, Dataset
+from .sequential_stages import (
+    N_STAGE1 as _N1,
+)
+from .sequential_stages import (
+    cone_covariance,
+    fit_plane,
+    laplace_covariance,
+    laser_points,
+    plane_residual_jacobians,
+    run_stage1,
+    stage1_residuals,
+    stage2_chi2,
+    stage2_cone,
+    standardized_stage1,
+    standardized_stage2,
+)
 
-__all__ = ["calibrate_sequential", "POSE_NAMES", "fit_plane"]
+__all__ = ["calibrate_sequential", "sequential_residuals", "SequentialResiduals", "POSE_NAMES",
+           "fit_plane"]
 
 POSE_NAMES = ("angle_x", "angle_y", "angle_z", "t_x", "t_y", "t_z")
-_N1 = 11          # stage-1 unknowns: 5 camera + 6 pose
 _FITS = ("cone", "plane")
 _METHODS = ("lm", "trf")
-_TOL = 1e-12
-
-
-# --------------------------------------------------------------------------- pose
-def _rotation_and_jacobian(angles):
-    """``R = Rz(c) Ry(b) Rx(a)`` (as :func:`rotation_matrix`) and ``dR[k] = dR/d angle_k``.
-
-    Returns
-    -------
-    R : ndarray, shape (3, 3)
-    dR : ndarray, shape (3, 3, 3)
-    """
-    a, b, c = angles
-    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
-    Rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
-    Ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
-    Rz = np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]])
-    dRx = np.array([[0, 0, 0], [0, -sa, -ca], [0, ca, -sa]])
-    dRy = np.array([[-sb, 0, cb], [0, 0, 0], [-cb, 0, -sb]])
-    dRz = np.array([[-sc, -cc, 0], [cc, -sc, 0], [0, 0, 0]])
-    R = Rz @ Ry @ Rx
-    dR = np.stack([Rz @ Ry @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx])
-    return R, dR
-
-
-def _theta7(cam5):
-    """Pad the 5 camera coordinates to a theta of shape (7,) (h, beta unused)."""
-    return np.concatenate([cam5, [1.0, 1.0]])
-
-
-# --------------------------------------------------------------------------- stage 1
-def _stage1_residuals(p1, grid_w, grid_pix, *, jacobian=False):
-    """Pixel residuals (2M,) of the pattern points and, optionally, d/d p1 (2M, 11)."""
-    R, dR = _rotation_and_jacobian(p1[5:8])
-    P = grid_w @ R.T + p1[8:11]
-    if not jacobian:
-        uv, _ = project_theta(_theta7(p1[:5]), P)
-        return (uv - grid_pix).ravel()
-    _, _, dP, dth = project_theta(_theta7(p1[:5]), P, jacobian=True)
-    J = np.empty(grid_w.shape[:1] + (2, _N1))
-    J[..., :5] = dth[..., :5]
-    dP_dang = np.einsum("kij,mj->mik", dR, grid_w)          # (M, 3, 3): column k = dR_k P_W
-    J[..., 5:8] = dP @ dP_dang
-    J[..., 8:11] = dP
-    return J.reshape(-1, _N1)
-
-
-def _laplace_covariance(J, sigma):
-    """``sigma^2 (J^T J)^-1`` through the SVD of J (shape (n, p) -> (p, p))."""
-    _, s, vt = np.linalg.svd(J, full_matrices=False)
-    with np.errstate(divide="ignore"):
-        inv = np.where(s > s[0] * 1e-14, 1.0 / s**2, np.inf)
-    return sigma**2 * (vt.T * inv) @ vt
-
-
-def _solve(fun, jac, x0, *, method, max_nfev, x_scale="jac"):
-    kw = {"ftol": _TOL, "xtol": _TOL, "gtol": _TOL}
-    return least_squares(fun, x0, jac=jac, method=method, max_nfev=max_nfev, x_scale=x_scale,
-                         **kw)
-
-
-# --------------------------------------------------------------------------- planes
-def fit_plane(points):
-    """Total-least-squares plane ``a x + b y + c z + d = 0`` through 3D points.
-
-    Parameters
-    ----------
-    points : array_like, shape (K, 3)
-        At least 3 points not on one line, mm.
-
-    Returns
-    -------
-    plane : ndarray, shape (4,)
-        ``(a, b, c, d)`` with ``(a, b, c)`` a unit normal oriented so that
-        ``d >= 0`` (the origin is on the positive side); ``d`` is the distance
-        from the origin in mm.
-    rms : float
-        RMS distance of the points from the plane, mm.
-    """
-    P = as_finite_array(points, "points", last_dim=3)
-    if P.ndim != 2 or P.shape[0] < 3:
-        raise ValueError(f"points must have shape (K, 3) with K >= 3, got {P.shape}")
-    c = P.mean(axis=0)
-    _, s, vt = np.linalg.svd(P - c, full_matrices=False)
-    if s[1] <= 1e-12 * max(s[0], 1e-300):
-        raise ValueError("points lie on a line (or coincide): the plane is undetermined")
-    n = vt[2]
-    d = -n @ c
-    if d < 0:
-        n, d = -n, -d
-    rms = float(s[2] / np.sqrt(P.shape[0]))
-    return np.append(n, d), rms
-
-
-def _laser_points(p1, planes_w, pix, plane_idx, *, jacobian=False):
-    """Laser points on the calibration planes in C, from the stage-1 estimate.
-
-    Returns ``P`` (K, 3), ``valid`` (K,) and with ``jacobian=True`` also
-    ``dP/d pix`` (K, 3, 2) and ``dP/d p1`` (K, 3, 11).
-    """
-    R, dR = _rotation_and_jacobian(p1[5:8])
-    t = p1[8:11]
-    nw, dw = planes_w[plane_idx, :3], planes_w[plane_idx, 3]     # nw.P_W + dw = 0
-    nc = nw @ R.T
-    oc = -dw + nc @ t                                             # nc.P_C = oc
-    out = backproject_theta(_theta7(p1[:5]), pix, jacobian=jacobian)
-    d = out[0]
-    den = np.sum(nc * d, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = oc / den
-    valid = out[1] & np.isfinite(s) & (s > 0)
-    P = s[:, None] * d
-    if not jacobian:
-        return P, valid
-    ddpix, ddth = out[2], out[3]
-    eye = np.eye(3)
-    dP_dd = s[:, None, None] * (eye - d[:, :, None] * nc[:, None, :] / den[:, None, None])
-    dP_dn = -(s / den)[:, None, None] * d[:, :, None] * d[:, None, :]
-    dP_do = d / den[:, None]
-    dn_dang = np.einsum("kij,mj->mik", dR, nw)                    # (K, 3, 3)
-    do_dang = np.einsum("mik,i->mk", dn_dang, t)                  # (K, 3)
-    J = np.empty(P.shape + (_N1,))
-    J[..., :5] = dP_dd @ ddth[..., :5]
-    J[..., 5:8] = dP_dn @ dn_dang + dP_do[:, :, None] * do_dang[:, None, :]
-    J[..., 8:11] = dP_do[:, :, None] * nc[:, None, :]
-    return P, valid, dP_dd @ ddpix, J
-
-
-def _cone_jacobians(hb, P):
-    """d r / d (h, beta) (K, 2) and d r / d P (K, 3) of the cone distance."""
-    h, b = hb
-    rho = np.hypot(P[:, 0], P[:, 1])
-    A = np.column_stack([np.full(len(P), -np.sin(b)),
-                         -rho * np.sin(b) - (P[:, 2] + h) * np.cos(b)])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dr = np.column_stack([np.cos(b) * P[:, 0] / rho, np.cos(b) * P[:, 1] / rho,
-                              np.full(len(P), -np.sin(b))])
-    return A, dr
 
 
 # --------------------------------------------------------------------------- input
@@ -263,6 +143,68 @@ def _check_count(value, name, *, minimum):
     return int(value)
 
 
+# --------------------------------------------------------------------------- residuals
+class SequentialResiduals(NamedTuple):
+    """Raw and standardized residuals of a sequential calibration (:func:`sequential_residuals`)."""
+
+    grid_px: np.ndarray
+    grid_z: np.ndarray
+    laser_mm: np.ndarray
+    laser_z: np.ndarray
+
+
+_RESIDUAL_KEYS = ("stage1_residuals_px", "stage1_residuals_std", "stage2_residuals_mm",
+                  "stage2_residuals_std")
+
+
+def sequential_residuals(result):
+    """The residuals of both stages of a sequential result, for a residual plot.
+
+    Kept in ``result.extras`` as plain arrays, so they survive
+    :meth:`CalibrationResult.save` and :func:`bayescal.load_result`.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        From :func:`calibrate_sequential` (or loaded from its file).
+
+    Returns
+    -------
+    SequentialResiduals
+        ``grid_px`` (M, 2): stage-1 pixel residuals of the pattern points,
+        ``observed - projected``, px. ``grid_z`` (M, 2): the same divided by
+        ``sigma sqrt(1 - h_i)`` (``sigma`` the pixel noise used,
+        ``extras["sigma_px_used"]``; ``h_i`` the leverage), dimensionless.
+        ``laser_mm`` (K,): stage-2 residuals of the laser points on the
+        calibration planes, mm (signed distance from the fitted cone, positive
+        outside it, or from the fitted plane with ``fit="plane"``).
+        ``laser_z`` (K,): the same divided by its first-order sd (laser-pixel
+        noise and stage-1 uncertainty, less what the fit absorbs),
+        dimensionless. Both standardized sets are about N(0, 1) when the model
+        holds at the noise used; the pattern points' measurement errors, which
+        the method does not model, widen them.
+
+    Raises
+    ------
+    TypeError
+        ``result`` is not a CalibrationResult.
+    ValueError
+        It is not a sequential result, or carries no residuals (a failed run,
+        or a file written before they were kept).
+    """
+    if not isinstance(result, CalibrationResult):
+        raise TypeError(f"result must be a CalibrationResult, got {type(result).__name__}")
+    if result.method != "sequential":
+        raise ValueError(f"result must come from calibrate_sequential, got method "
+                         f"{result.method!r}")
+    missing = [k for k in _RESIDUAL_KEYS if result.extras.get(k) is None]
+    if missing:
+        raise ValueError(f"result.extras has no {', '.join(missing)}: a failed run, or a file "
+                         "written before the residuals were kept")
+    a, b, c, d = (np.asarray(result.extras[k], float) for k in _RESIDUAL_KEYS)
+    return SequentialResiduals(a.reshape(-1, 2), b.reshape(-1, 2), c.ravel(), d.ravel())
+
+
 # --------------------------------------------------------------------------- main
 def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit="cone",
                          sigma_px=None, method="lm", max_nfev=2000, restarts=0, rng=None):
@@ -341,7 +283,7 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     restarts = _check_count(restarts, "restarts", minimum=0)
     planes_w = _fit_calibration_planes(grid_w, grid_plane, laser_plane)
 
-    s1 = _run_stage1(grid_w, grid_pix, init, pose0, method=method, max_nfev=max_nfev,
+    s1 = run_stage1(grid_w, grid_pix, init, pose0, method=method, max_nfev=max_nfev,
                      restarts=restarts, rng=rng)
     theta = np.concatenate([s1.x[:5], [init.h, init.beta]])
     n_res1 = grid_pix.size
@@ -354,9 +296,9 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
             "nfev": s1.nfev, "init": init, "room_pixels": room_pixels}
     if not (s1.success and np.all(np.isfinite(s1.x)) and np.isfinite(rms1)):
         _fail(f"stage 1 (camera) did not converge: {s1.message}", theta, s1, info)
-    C1 = _laplace_covariance(_stage1_residuals(s1.x, grid_w, grid_pix, jacobian=True), sigma)
+    C1 = laplace_covariance(stage1_residuals(s1.x, grid_w, grid_pix, jacobian=True), sigma)
 
-    P, valid = _laser_points(s1.x, planes_w, laser_pix, laser_plane)
+    P, valid = laser_points(s1.x, planes_w, laser_pix, laser_plane)
     if not np.all(valid):
         bad = np.flatnonzero(~valid)
         _fail(f"{bad.size} laser pixels (first index {bad[0]}) do not meet their calibration "
@@ -366,47 +308,8 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     return _finish_plane(s1, C1, theta, P, info)
 
 
-def _run_stage1(grid_w, grid_pix, init, pose0, *, method, max_nfev, restarts, rng):
-    x0 = np.concatenate([init.to_identifiable()[:5], pose0])
-    starts = [x0]
-    if restarts:
-        gen = resolve_rng(rng)
-        for _ in range(restarts):
-            x = x0.copy()
-            x[:5] *= 1.0 + gen.uniform(-0.1, 0.1, 5)
-            starts.append(x)
-    best, nfev = None, 0
-    for x in starts:
-        r0 = _stage1_residuals(x, grid_w, grid_pix)
-        if not np.all(np.isfinite(r0)):
-            continue                           # this start puts pattern points off the model
-        sol = _solve(lambda p: _stage1_residuals(p, grid_w, grid_pix),
-                     lambda p: _stage1_residuals(p, grid_w, grid_pix, jacobian=True), x,
-                     method=method, max_nfev=max_nfev)
-        nfev += sol.nfev
-        finite = np.all(np.isfinite(sol.fun))
-        if finite and (best is None or sol.cost < best.cost or not best.success):
-            best = sol
-    if best is None:
-        raise ValueError("init/init_pose project some calibration grid points outside the "
-                         "camera model (xi * r - z <= 0); give a starting point closer to "
-                         "the sensor")
-    best.nfev = nfev
-    return best
-
-
-def _stage2_cone(P, hb0, *, method, max_nfev):
-    def fun(hb):
-        return cone_distance(hb[0], hb[1], P)
-
-    def jac(hb):
-        return _cone_jacobians(hb, P)[0]
-
-    return _solve(fun, jac, np.asarray(hb0, float), method=method, max_nfev=max_nfev)
-
-
 def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
-    s2 = _stage2_cone(P, theta[5:], method=method, max_nfev=max_nfev)
+    s2 = stage2_cone(P, theta[5:], method=method, max_nfev=max_nfev)
     info["nfev"] += s2.nfev
     theta = np.concatenate([s1.x[:5], s2.x])
     if not (s2.success and np.all(np.isfinite(s2.x)) and np.all(np.isfinite(s2.fun))):
@@ -417,27 +320,15 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
         _fail(f"stage 2 ended outside the model (h = {s2.x[0]:.4g} mm, beta = "
               f"{s2.x[1]:.4g} rad){hint}", theta, s1, info, C1=C1)
     # first-order covariance of (h, beta): laser-pixel noise + stage-1 uncertainty
-    _, _, dPpix, dPp1 = _laser_points(s1.x, info["planes_w"], info["laser_pix"],
-                                      info["laser_plane"], jacobian=True)
-    A, dr = _cone_jacobians(s2.x, P)
-    g_pix = np.einsum("ki,kij->kj", dr, dPpix)                   # (K, 2)
-    B1 = np.einsum("ki,kij->kj", dr, dPp1)                       # (K, 11)
-    Minv = np.linalg.inv(A.T @ A)
-    w = np.sum(g_pix**2, axis=1)                                 # var(r_k) / sigma^2
-    G1 = -Minv @ A.T @ B1
-    cov_hb_pix = info["sigma"] ** 2 * Minv @ (A.T * w) @ A @ Minv
-    C13 = np.zeros((13, 13))
-    C13[:11, :11] = C1
-    C13[11:, 11:] = cov_hb_pix + G1 @ C1 @ G1.T
-    C13[:11, 11:] = C1 @ G1.T
-    C13[11:, :11] = C13[:11, 11:].T
+    C13, A, B1, w = cone_covariance(s1.x, C1, s2.x, P, info["planes_w"], info["laser_pix"],
+                                    info["laser_plane"], info["sigma"])
     keep = [0, 1, 2, 3, 4, 11, 12]
     cov7 = C13[np.ix_(keep, keep)]
     rms2 = float(np.sqrt(np.mean(s2.fun**2)))
     # identifiability of both stages together, whitened, w.r.t. the 8 paper params + pose
     params = _params(theta, info["fix_phi"])
     T = identifiable_to_paper_jacobian(params)                     # (7, 8)
-    J1 = _stage1_residuals(s1.x, info["grid_w"], info["grid_pix"], jacobian=True)
+    J1 = stage1_residuals(s1.x, info["grid_w"], info["grid_pix"], jacobian=True)
     J2 = np.zeros((len(P), 13))
     J2[:, :11] = B1
     J2[:, 11:] = A
@@ -445,38 +336,18 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     Jall = np.vstack([np.column_stack([J1, np.zeros((len(J1), 2))]), J2])
     J8 = np.column_stack([Jall[:, keep] @ T, Jall[:, 5:11]])
     report = identifiability_report(J8, PARAM_NAMES + POSE_NAMES)
-    chi2 = _stage2_chi2(s2.fun, A, info["sigma"] ** 2 * w, B1, C1)
+    var_pix = info["sigma"] ** 2 * w
+    chi2 = stage2_chi2(s2.fun, A, var_pix, B1, C1)
     extras = {"laser_model": "cone", "stage2_covariance_hb": C13[11:, 11:],
               "stage2": {"n_residuals": len(P), "n_unknowns": 2, "nfev": s2.nfev,
-                         "rms_mm": rms2, "chi2_per_dof": chi2}}
+                         "rms_mm": rms2, "chi2_per_dof": chi2},
+              **_residual_extras(s1, J1, info, s2.fun, A, var_pix, B1, C1)}
     points = None
     if info["room_pixels"] is not None:
         points = triangulate(params, info["room_pixels"])
     return _result(params, theta, cov7, points, {"cone_mm": rms2}, s1, C1, P, info, report,
                    extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + 2,
                    message=f"stage 1: {s1.message} | stage 2: {s2.message}")
-
-
-def _stage2_chi2(r, A, var_pix, B1, C1):
-    """Goodness of fit of stage 2 per degree of freedom, about 1 when consistent.
-
-    The first-order covariance of the stage-2 residuals under pixel noise and
-    stage-1 uncertainty is ``S = diag(var_pix) + B1 C1 B1^T``. With ``r`` the
-    least-squares residuals, ``min_d (r - A d)^T S^-1 (r - A d)`` is then
-    chi-square with K - 2 degrees of freedom; it is returned divided by K - 2.
-    Values far above 1 mean the laser points are off the fitted planes or cone by
-    more than that explains (e.g. errors of the measured pattern points, which the
-    method does not model), and the (h, beta) covariance is then too small.
-    """
-    S = np.diag(var_pix) + B1 @ C1 @ B1.T
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        return float("nan")                # zero noise (exact data): undefined
-    x = solve_triangular(L, r, lower=True)
-    Y = solve_triangular(L, A, lower=True)
-    d = np.linalg.lstsq(Y, x, rcond=None)[0]
-    return float(np.sum((x - Y @ d) ** 2) / max(len(r) - 2, 1))
 
 
 def _finish_plane(s1, C1, theta, P, info):
@@ -488,17 +359,31 @@ def _finish_plane(s1, C1, theta, P, info):
     points = None
     if info["room_pixels"] is not None:
         points = triangulate_plane(params, info["room_pixels"], plane)
+    A, g_pix, B1 = plane_residual_jacobians(s1.x, plane, P, info["planes_w"], info["laser_pix"],
+                                            info["laser_plane"])
+    J1 = stage1_residuals(s1.x, info["grid_w"], info["grid_pix"], jacobian=True)
     extras = {"laser_model": "plane", "laser_plane": plane,
-              "stage2": {"n_residuals": len(P), "n_unknowns": 3, "nfev": 0, "rms_mm": rms2}}
+              "stage2": {"n_residuals": len(P), "n_unknowns": 3, "nfev": 0, "rms_mm": rms2},
+              **_residual_extras(s1, J1, info, P @ plane[:3] + plane[3], A,
+                                 info["sigma"] ** 2 * np.sum(g_pix**2, axis=1), B1, C1)}
     return _result(params, theta, cov7, points, {"plane_mm": rms2}, s1, C1, P, info, report,
                    extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + 3,
                    message=f"stage 1: {s1.message} | stage 2: total least squares plane")
 
 
+def _residual_extras(s1, J1, info, r2, A, var_pix, B1, C1):
+    """The residuals a residual plot needs, as plain arrays (see :func:`sequential_residuals`)."""
+    z1 = standardized_stage1(s1.fun, J1, info["sigma"])
+    return {"stage1_residuals_px": s1.fun.reshape(-1, 2).copy(),
+            "stage1_residuals_std": z1.reshape(-1, 2),
+            "stage2_residuals_mm": np.asarray(r2, float).copy(),
+            "stage2_residuals_std": standardized_stage2(r2, A, var_pix, B1, C1)}
+
+
 def _stage1_report(p1, params, info):
     """Identifiability of stage 1 w.r.t. the six camera paper parameters and the pose."""
     T = identifiable_to_paper_jacobian(params)[:5, :6]              # camera rows/columns
-    J1 = _stage1_residuals(p1, info["grid_w"], info["grid_pix"], jacobian=True)
+    J1 = stage1_residuals(p1, info["grid_w"], info["grid_pix"], jacobian=True)
     J8 = np.column_stack([J1[:, :5] @ T, J1[:, 5:]])        # whitening 1/sigma: irrelevant
     if not np.all(np.isfinite(J8)):
         J8 = np.zeros_like(J8)

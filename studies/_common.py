@@ -18,7 +18,7 @@ import bayescal.io
 
 __all__ = ["parse_args", "executor", "run_trials", "OutputDir", "write_json", "to_jsonable",
            "sensor_for_trial", "three_methods", "bayes_settings", "scene_sigma",
-           "run_room_study", "room_trial", "MODES", "SCENE_FLOOR_MM"]
+           "run_room_study", "room_trial", "point_errors", "MODES", "SCENE_FLOOR_MM"]
 
 MODES = ("full", "quick", "smoke")
 #: floor (mm) of the scene standard deviation given to the calibrations: simulate_room
@@ -73,7 +73,7 @@ def bayes_settings(mode):
     }[mode]
 
 
-def _err(points, truth):
+def point_errors(points, truth):
     """Mean and median distance (mm) and the number of invalid (NaN) points."""
     if points is None:
         return float("nan"), float("nan"), None
@@ -114,7 +114,7 @@ def three_methods(ds, rng, *, bayes):
     except bc.ConvergenceError as exc:
         seq_pts, out["sequential_failed"] = None, str(exc)
     out["sequential_mm"], out["sequential_median_mm"], out["sequential_invalid"] = \
-        _err(seq_pts, ds.points)
+        point_errors(seq_pts, ds.points)
     try:
         sim = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=ds.sigma_px or 0.1,
                                         sigma_scene=sig)
@@ -123,10 +123,10 @@ def three_methods(ds, rng, *, bayes):
         out["simultaneous_params"] = sim.params.to_array()
     except bc.ConvergenceError as exc:
         sim_pts, tri, out["simultaneous_failed"] = None, None, str(exc)
-    out["simultaneous_mm"], out["simultaneous_median_mm"], _ = _err(sim_pts, ds.points)
+    out["simultaneous_mm"], out["simultaneous_median_mm"], _ = point_errors(sim_pts, ds.points)
     (out["simultaneous_triangulated_mm"], out["simultaneous_triangulated_median_mm"],
-     out["simultaneous_triangulated_invalid"]) = _err(tri, ds.points)
-    out["approx_mm"], _, _ = _err(ds.approx_points, ds.points)
+     out["simultaneous_triangulated_invalid"]) = point_errors(tri, ds.points)
+    out["approx_mm"], _, _ = point_errors(ds.approx_points, ds.points)
     out["bayes_mm"] = out["bayes_median_mm"] = float("nan")
     out["bayes_failed"] = None
     if bayes is not None:
@@ -134,7 +134,7 @@ def three_methods(ds, rng, *, bayes):
             post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=ds.sigma_px or 0.1,
                                        sigma_scene=sig, rng=rng, progress=False,
                                        **bayes)
-            out["bayes_mm"], out["bayes_median_mm"], _ = _err(post.point_mean, ds.points)
+            out["bayes_mm"], out["bayes_median_mm"], _ = point_errors(post.point_mean, ds.points)
             out["bayes_converged"] = bool(post.converged)
             out["bayes_tau_max"] = float(np.max(post.tau))
             out["bayes_steps"] = int(post.n_steps)

@@ -1,4 +1,5 @@
-"""SensorParams, the identifiable coordinates and the exact degeneracy (DESIGN fact 1)."""
+"""SensorParams, the identifiable coordinates and the exact degeneracy (fact 1 of
+docs/model.md, "Measured facts": only xi, gamma_u, gamma_v, u0, v0, h, beta are seen)."""
 
 import numpy as np
 import pytest
@@ -54,7 +55,8 @@ def test_identifiable_jacobian_matches_finite_differences(sensor, numdiff):
 
 @pytest.mark.parametrize("k", [0.5, 1.7, 3.0])
 def test_degeneracy_changes_no_pixel_and_no_point(sensor, k, rng):
-    """DESIGN fact 1: alpha -> k alpha, phi -> (xi + phi) / k - xi is invisible in the data."""
+    """Fact 1 (docs/model.md, "Measured facts"): alpha -> k alpha,
+    phi -> (xi + phi) / k - xi is invisible in the data."""
     other = sensor.replace(alpha_u=k * sensor.alpha_u, alpha_v=k * sensor.alpha_v,
                            phi=(sensor.xi + sensor.phi) / k - sensor.xi)
     assert not np.allclose(other.to_array(), sensor.to_array())

@@ -10,12 +10,8 @@ from scipy import stats
 import bayescal as bc
 from bayescal.parameters import IDENTIFIABLE_NAMES
 from bayescal.scenes import rotation_matrix
-from bayescal.sequential import (
-    _laser_points,
-    _rotation_and_jacobian,
-    _stage1_residuals,
-    fit_plane,
-)
+from bayescal.sequential import fit_plane
+from bayescal.sequential_stages import laser_points, rotation_and_jacobian, stage1_residuals
 
 CALIB_NORMALS_W = np.array([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0]])
 
@@ -35,7 +31,7 @@ def _true_pose(c):
 # ----------------------------------------------------------------------------- Jacobians
 def test_rotation_matches_scenes_and_its_jacobian(numdiff):
     angles = np.array([0.3, -0.2, 1.1])
-    R, dR = _rotation_and_jacobian(angles)
+    R, dR = rotation_and_jacobian(angles)
     np.testing.assert_allclose(R, rotation_matrix(angles), rtol=0, atol=1e-15)
     fd = numdiff(lambda a: rotation_matrix(a).ravel(), angles, 1e-6)      # (9, 3)
     np.testing.assert_allclose(np.moveaxis(dR, 0, -1).reshape(9, 3), fd, rtol=0, atol=1e-9)
@@ -45,8 +41,8 @@ def test_stage1_jacobian_matches_finite_differences(numdiff):
     ds = _room(sigma_px=0.3)
     c = ds.calibration
     p1 = np.concatenate([ds.params.to_identifiable()[:5] * 1.01, _true_pose(c) + 0.01])
-    J = _stage1_residuals(p1, c.grid_points, c.grid_pixels, jacobian=True)
-    fd = numdiff(lambda x: _stage1_residuals(x, c.grid_points, c.grid_pixels), p1,
+    J = stage1_residuals(p1, c.grid_points, c.grid_pixels, jacobian=True)
+    fd = numdiff(lambda x: stage1_residuals(x, c.grid_points, c.grid_pixels), p1,
                  np.r_[1e-6, 1e-4, 1e-4, 1e-4, 1e-4, 1e-7, 1e-7, 1e-7, 1e-4, 1e-4, 1e-4])
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-6)
 
@@ -57,12 +53,12 @@ def test_laser_point_jacobians_match_finite_differences(numdiff):
     p1 = np.concatenate([ds.params.to_identifiable()[:5] * 0.99, _true_pose(c) - 0.01])
     planes = np.array([fit_plane(c.grid_points[c.grid_plane == j])[0] for j in range(4)])
     pix, idx = c.laser_pixels[:15], c.laser_plane[:15]
-    P, valid, dpix, dp1 = _laser_points(p1, planes, pix, idx, jacobian=True)
+    P, valid, dpix, dp1 = laser_points(p1, planes, pix, idx, jacobian=True)
     assert valid.all()
-    fd1 = numdiff(lambda x: _laser_points(x, planes, pix, idx)[0], p1,
+    fd1 = numdiff(lambda x: laser_points(x, planes, pix, idx)[0], p1,
                   np.r_[1e-6, 1e-4, 1e-4, 1e-4, 1e-4, 1e-7, 1e-7, 1e-7, 1e-4, 1e-4, 1e-4])
     np.testing.assert_allclose(dp1, fd1, rtol=1e-5, atol=1e-5)
-    fdp = np.stack([numdiff(lambda q, k=k: _laser_points(p1, planes, q[None], idx[k:k + 1])[0][0],
+    fdp = np.stack([numdiff(lambda q, k=k: laser_points(p1, planes, q[None], idx[k:k + 1])[0][0],
                             pix[k], 1e-4) for k in range(len(pix))])
     np.testing.assert_allclose(dpix, fdp, rtol=1e-5, atol=1e-5)
 
@@ -279,7 +275,8 @@ def test_reconstruction_improves_with_less_noise():
     ds_big = _room(sigma_px=1.0, rng=9, n_points=100)
     e_big = bc.reconstruction_error(big.points, ds_big.points)
     e_small = bc.reconstruction_error(small.points, ds_small.points)
-    # errors scale ~ linearly with pixel noise (DESIGN fact 2: ~41 mm per px at 1000 mm)
+    # errors scale ~ linearly with pixel noise (fact 2 of docs/model.md,
+    # "Measured facts": ~41 mm mean error per px of noise at 1000 mm)
     assert e_small < 0.05 * e_big and 5.0 < e_big < 150.0
 
 
@@ -349,3 +346,64 @@ def test_no_convergence_raises_with_flagged_result():
     res = info.value.result
     assert isinstance(res, bc.CalibrationResult) and not res.converged
     assert "NOT CONVERGED" in res.summary()
+
+
+# ----------------------------------------------------------------------------- residuals
+def _mean_squares(fit, seeds, sigma_px=0.5):
+    g, laser = [], []
+    for seed in seeds:
+        ds = _room(sigma_px=sigma_px, rng=seed, n_points=20)
+        if fit == "plane":
+            m = np.array([0.04, -0.03, 1.0]) / np.linalg.norm([0.04, -0.03, 1.0])
+            calib = _laser_on_known_plane(ds, m, -150.0)
+            noise = np.random.default_rng(seed).normal(0.0, sigma_px, calib.laser_pixels.shape)
+            calib = dataclasses.replace(calib, laser_pixels=calib.laser_pixels + noise)
+            ds = dataclasses.replace(ds, calibration=calib)
+        s = bc.sequential_residuals(bc.calibrate_sequential(ds, sigma_px=sigma_px, fit=fit))
+        assert s.grid_z.shape == s.grid_px.shape and s.laser_z.shape == s.laser_mm.shape
+        g.append(np.mean(s.grid_z**2))
+        laser.append(np.mean(s.laser_z**2))
+    return np.mean(g), np.mean(laser)
+
+
+@pytest.mark.parametrize("fit", ["cone", "plane"])
+def test_standardized_residuals_have_unit_variance(fit):
+    """Exact pattern points, the true pixel noise given: each standardized residual is N(0, 1)
+    to first order, so the mean square over 10 datasets is 1 within sampling error. Grid: 280
+    residuals a dataset, sd of one mean square sqrt(2/280) = 0.085; stage 2: 80 residuals
+    correlated through the shared stage-1 error, measured sd 0.18 over 30 datasets (0.158 if
+    independent). Over 10 datasets the bounds below are ~4 sd: FFR ~1e-4 per check."""
+    g, laser = _mean_squares(fit, range(100, 110))
+    assert abs(g - 1.0) < 4 * 0.085 / np.sqrt(10)
+    assert abs(laser - 1.0) < 4 * 0.2 / np.sqrt(10)
+
+
+def test_residuals_show_pattern_errors_the_method_does_not_model():
+    """5 % errors on the measured pattern points (~40 mm at 800 mm, i.e. pixels off by ~1 px
+    against 0.1 px of noise): the standardized residuals are far wider than N(0, 1), as the
+    residual plot must show (measured mean squares ~500 and ~80)."""
+    s = bc.sequential_residuals(bc.calibrate_sequential(
+        _room(sigma_px=0.1, rng=1, n_points=20, approx_error=0.05), sigma_px=0.1))
+    assert np.mean(s.grid_z**2) > 10 and np.mean(s.laser_z**2) > 10
+
+
+def test_residuals_survive_save_and_load(tmp_path):
+    res = bc.calibrate_sequential(_room(sigma_px=0.5, rng=3, n_points=20))
+    loaded = bc.load_result(res.save(tmp_path / "seq.json"))
+    for a, b in zip(bc.sequential_residuals(res), bc.sequential_residuals(loaded), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert loaded.extras["sigma_px_used"] == res.extras["sigma_px_used"]
+
+
+def test_sequential_residuals_refuses_other_results():
+    ds = _room(sigma_px=0.5, rng=3, n_points=20)
+    sim = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.5,
+                                    sigma_scene=np.maximum(ds.sigma_scene, 1.0))
+    with pytest.raises(ValueError, match="calibrate_sequential"):
+        bc.sequential_residuals(sim)
+    with pytest.raises(TypeError, match="CalibrationResult"):
+        bc.sequential_residuals({"method": "sequential"})
+    seq = bc.calibrate_sequential(ds)
+    seq.extras.pop("stage2_residuals_std")
+    with pytest.raises(ValueError, match="stage2_residuals_std"):
+        bc.sequential_residuals(seq)

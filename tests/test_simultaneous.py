@@ -1,4 +1,5 @@
-"""Simultaneous least squares (paper section III; DESIGN section 5 rung 2)."""
+"""Simultaneous least squares (paper section III; rung 2 of the validation ladder, stated in
+docs/calibration.md, "Checks of the least squares")."""
 
 import numpy as np
 import pytest
@@ -87,7 +88,7 @@ def test_fixed_points_variant_recovers_the_truth_on_exact_points(rng):
         np.testing.assert_allclose(res.points, ds.points, rtol=0, atol=1e-3)
 
 
-# -- covariance against re-fits (DESIGN section 5, rung 2) ------------------------------------
+# -- covariance against re-fits (rung 2: docs/calibration.md, "Checks of the least squares") --
 
 #: the re-fit setting: small room, 100 points, 0.3 px, 2 % Gaussian approximate points.
 #: Priors x 1000 wider than the default: the Laplace covariance of a MAP with informative
@@ -159,10 +160,11 @@ def test_covariance_matches_the_spread_of_refits_fast():
 
 @pytest.mark.slow
 def test_covariance_matches_the_spread_of_refits_within_20_percent():
-    """DESIGN rung 2: 200 re-fits; predicted sd within 20 % of the observed spread for every
-    identifiable parameter and every point's 3 eigen-directions (sample-sd noise at 200
-    draws is 5 %, so 20 % is 4 standard errors: FFR ~6e-5 per check before the 7 + 300
-    checks; measured ratios 0.93-1.11 for theta, 0.86-1.15 over the points)."""
+    """Rung 2 (docs/calibration.md, "Checks of the least squares"): 200 re-fits; predicted sd
+    within 20 % of the observed spread for every identifiable parameter and every point's 3
+    eigen-directions (sample-sd noise at 200 draws is 5 %, so 20 % is 4 standard errors:
+    FFR ~6e-5 per check before the 7 + 300 checks; measured ratios 0.93-1.11 for theta,
+    0.86-1.15 over the points)."""
     thetas, covs, points, pcovs, _, _ = _refits(200, seed0=1000)
     pred = np.sqrt(np.diag(covs.mean(axis=0)))
     np.testing.assert_allclose(thetas.std(axis=0, ddof=1), pred, rtol=0.2)
@@ -185,7 +187,8 @@ def test_estimated_pixel_noise_within_10_percent():
 
 
 def test_large_room_needs_the_priors():
-    """DESIGN fact 3 on the paper's protocol (fig9 approximate points: no z information,
+    """Fact 3 (docs/model.md, "Measured facts": least squares needs priors at large range)
+    on the paper's protocol (fig9 approximate points: no z information,
     5000 mm, 5 %, 0.1 px). With priors of sd x 10^4 (practically none) the solver wanders off
     along the beta/h direction the data cannot fix (measured: h = 463 mm, beta = 0.78, no
     convergence in 200 iterations); with the default priors it converges and every
