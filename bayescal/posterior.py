@@ -97,8 +97,11 @@ class Posterior:
                  approx_points, sigma_px, sigma_scene, prior, tau, ess, n_steps, burn,
                  n_walkers, converged, acceptance, imh_acceptance, map_result=None,
                  laplace_cov8=None, laplace_cov7=None, map_params=None, map_points=None,
-                 map_point_covariance=None, diagnostics=None, wall_samples=None, plan=None):
+                 map_point_covariance=None, diagnostics=None, wall_samples=None, plan=None,
+                 outlier_prob=None):
         self.diagnostics = diagnostics      # ChainDiagnostics (tau, ESS, rule) or None
+        # (N,) posterior probability that each input row is an outlier (None: no mixture)
+        self.outlier_prob = None if outlier_prob is None else np.asarray(outlier_prob, float)
         # floor-plan posteriors only: (S, W, 2) draws of (d_k mm, a_k rad) and the FloorPlan
         self.wall_samples = None if wall_samples is None else np.asarray(wall_samples, float)
         self.plan = plan
@@ -273,8 +276,7 @@ class Posterior:
             lines.append(f"{r['name']:8s} {r['mean']:11.5g} {r['sd']:10.3g} {r['q05']:11.5g} "
                          f"{r['q50']:11.5g} {r['q95']:11.5g} {r['tau']:6.1f} {r['ess']:7.0f} "
                          f"{r['sd_ratio']:8.3f}  {', '.join(flags)}")
-        for k, name in enumerate(self.noise_names):
-            v = np.exp(self.noise_samples[:, k])
+        for name, v in self.noise_values().items():
             lines.append(f"{name:8s} {v.mean():11.5g} {v.std(ddof=1):10.3g}   (inferred)")
         status = "converged" if self.converged else "NOT CONVERGED"
         lines.append(f"chain: {self.n_walkers} walkers x {self.n_steps} steps, burn-in "
@@ -296,8 +298,8 @@ class Posterior:
             "covariance_identifiable": self.covariance(identifiable=True),
             "rows": self.summary_rows(), "converged": self.converged,
             "n_samples": self.n_samples, "tau": self.tau, "ess": self.ess,
-            "noise": {n: float(np.exp(self.noise_samples[:, k]).mean())
-                      for k, n in enumerate(self.noise_names)}})
+            "noise": {n: float(v.mean()) for n, v in self.noise_values().items()},
+            "outlier_prob": self.outlier_prob})
 
     def to_inference_data(self):
         """The samples as an ``arviz.InferenceData`` (needs the ``arviz`` extra).
@@ -312,8 +314,8 @@ class Posterior:
                 from None
         post = {n: self.param_samples[None, :, k] for k, n in enumerate(PARAM_NAMES)}
         post["points"] = self.point_samples[None]
-        for k, n in enumerate(self.noise_names):
-            post[n] = np.exp(self.noise_samples[None, :, k])
+        for n, v in self.noise_values().items():
+            post[n] = v[None]
         return arviz.from_dict(posterior=post, dims={"points": ["point", "axis"]},
                                coords={"axis": ["x", "y", "z"]})
 
@@ -382,7 +384,7 @@ class Posterior:
                                   else self.sigma_px,
                                   sigma_scene=sigma_scene)
             ref = {n: float(np.exp(np.mean(self.noise_samples[:, k])))
-                   for k, n in enumerate(self.noise_names)}
+                   for k, n in enumerate(self.noise_names) if n in ("sigma_px", "kappa")}
             lik.set_reference_noise(**ref)
             psi = np.concatenate([theta, self._noise_for(lik, idx)], axis=1)
             q0 = lik.initial_q(theta.mean(axis=0))
@@ -393,6 +395,18 @@ class Posterior:
             rec.mean, rec.covariance = rec.mean[0], rec.covariance[0]
             rec.intervals, rec.valid = rec.intervals[0], rec.valid[0]
         return rec
+
+    def noise_values(self):
+        """Samples of each inferred global on its natural scale, ``{name: (S,)}``.
+
+        ``sigma_px`` (px) and ``kappa`` are sampled as logarithms, the outlier
+        fraction ``outlier_frac`` as a logit; this undoes both.
+        """
+        out = {}
+        for k, n in enumerate(self.noise_names):
+            x = self.noise_samples[:, k]
+            out[n] = 1.0 / (1.0 + np.exp(-x)) if n == "outlier_frac" else np.exp(x)
+        return out
 
     def _sigma_px_samples(self):
         if "sigma_px" in self.noise_names:
@@ -444,6 +458,8 @@ class Posterior:
             arrays["sigma_scene"] = np.asarray(self.sigma_scene, float)
         if self.wall_samples is not None:
             arrays["wall_samples"] = self.wall_samples
+        if self.outlier_prob is not None:
+            arrays["outlier_prob"] = self.outlier_prob
         if self.plan is not None:
             arrays.update({"plan_" + k: v for k, v in self.plan.to_arrays().items()})
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -477,6 +493,7 @@ def load_posterior(path):
         arrays = {k: f[k] for k in _ARRAYS}
         sigma_scene = f["sigma_scene"] if "sigma_scene" in f else None
         wall_samples = f["wall_samples"] if "wall_samples" in f else None
+        outlier_prob = f["outlier_prob"] if "outlier_prob" in f else None
         plan_arrays = {k[5:]: f[k] for k in f.files if k.startswith("plan_")}
     prior = {n: getattr(stats, d)(*args, **kwds) for n, (d, args, kwds) in meta["prior"].items()}
     return Posterior(
@@ -492,7 +509,7 @@ def load_posterior(path):
         map_point_covariance=arrays["map_point_covariance"],
         diagnostics=None if meta.get("diagnostics") is None else
         ChainDiagnostics.from_dict(meta["diagnostics"]), wall_samples=wall_samples,
-        plan=_load_plan(plan_arrays))
+        plan=_load_plan(plan_arrays), outlier_prob=outlier_prob)
 
 
 def _load_plan(arrays):

@@ -185,7 +185,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
-                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None):
+                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
+                     outliers=True):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -237,6 +238,14 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         Independence Metropolis-Hastings corrections per point draw.
     n_iter : int, optional
         Gauss-Newton iterations of the per-point Laplace step.
+    outliers : bool, optional
+        Per-point outlier mixture (``docs/robustness.md``): each row is an
+        inlier or, with probability ``w`` (Beta(1, 19) prior, sampled), an
+        outlier with 100x the noise; ``post.outlier_prob`` (N,) gives each
+        row's posterior probability of being one. On clean data it moves the
+        posterior by a few hundredths of a sd (``tests/test_sampling.py``).
+        ``False``: the pure model. Not available yet with a
+        :class:`~bayescal.FloorPlan` (ignored there).
 
     Returns
     -------
@@ -253,7 +262,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     (8, (60, 3))
     """
     if isinstance(approx_points, FloorPlan):          # walls in place of points
-        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
+        # the floor-plan likelihood has no outlier mixture yet (docs/floorplan.md)
+        kw = {k: v for k, v in locals().items()
+              if k not in ("pixels", "approx_points", "outliers")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
@@ -264,7 +275,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
-    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
+                          outliers=outliers)
     ndim = 7 + len(lik.extra_names)
     if n_walkers is not None and int(n_walkers) < 2 * ndim:
         raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
@@ -272,7 +284,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
-                                     sigma_scene=sigma_scene, prior=prior, init=init)
+                                     sigma_scene=sigma_scene, prior=prior, init=init,
+                                     outliers=outliers)
     psi_map, cov_map, q_map = _map_start(lik, map_res)
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
@@ -301,11 +314,16 @@ def _map_start(lik, map_res):
         psi_map.append(np.log(noise["sigma_px"]))
     if lik.infer_scene:
         psi_map.append(np.log(noise["kappa"]))
+    if lik.outliers:
+        w = float(np.clip(noise["outlier_frac"], 1e-4, 0.5))
+        psi_map.append(np.log(w / (1.0 - w)))
     ndim = len(psi_map)
     cov = np.zeros((ndim, ndim))
     cov[:7, :7] = sol.cov_theta
     for k in range(7, ndim):
         cov[k, k] = 1.0 / lik.n                 # ~ squared relative sd of a noise estimate
+    if lik.outliers:                            # logit w: ~ Beta(1, 19) prior's spread
+        cov[-1, -1] = 1.0
     return np.array(psi_map), cov, sol.q
 
 
@@ -324,11 +342,26 @@ def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
         prior=prior, map_result=map_res, tau=diag.tau, ess=diag.ess,
         n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,
         converged=diag.converged, acceptance=diag.acceptance,
-        imh_acceptance=run["imh_acceptance"], diagnostics=diag)
+        imh_acceptance=run["imh_acceptance"], diagnostics=diag,
+        outlier_prob=_outlier_prob(lik, psi, run["q"]))
+
+
+def _outlier_prob(lik, psi, q, batch=256):
+    """Posterior probability (N,) that each row is an outlier: the mean over draws of its
+    conditional probability given the globals (None without the mixture)."""
+    if not getattr(lik, "outliers", False):
+        return None
+    total = np.zeros(lik.n)
+    for lo in range(0, len(psi), batch):
+        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
+        total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
+    return total / len(psi)
 
 
 def _check_noise_bounds(post):
     for k, name in enumerate(post.noise_names):
+        if name not in NOISE_BOUNDS:
+            continue
         lo = NOISE_BOUNDS[name][0]
         if np.quantile(np.exp(post.noise_samples[:, k]), 0.05) < 2 * lo:
             warnings.warn(f"the posterior of the inferred {name} reaches its prior's lower "

@@ -58,8 +58,9 @@ def test_output_shapes_and_convergence_rule():
     assert post.param_samples.shape == (300, 8)
     assert post.theta_samples.shape == (300, 7)
     assert post.point_samples.shape == (300, 60, 3)
-    assert post.noise_samples.shape == (300, 0)
-    assert post.tau.shape == post.ess.shape == (7,)
+    assert post.noise_names == ("outlier_frac",)          # the mixture is on by default
+    assert post.noise_samples.shape == (300, 1)
+    assert post.tau.shape == post.ess.shape == (8,)
     # the rule the sampler claims: kept chain longer than 50 tau, ESS >= min_ess
     assert post.converged
     assert post.n_steps - post.burn > 50 * np.max(post.tau)
@@ -88,10 +89,11 @@ def test_same_seed_same_samples_different_seed_different():
 
 def test_too_few_walkers_and_bad_options_raise():
     ds = _room(60)
-    with pytest.raises(ValueError, match=r"n_walkers must be at least 2 \* ndim = 14.*got 10"):
+    # 7 parameters + the outlier fraction
+    with pytest.raises(ValueError, match=r"n_walkers must be at least 2 \* ndim = 16.*got 10"):
         _sample(ds, n_walkers=10)
-    with pytest.raises(ValueError, match=r"at least 2 \* ndim = 18"):       # 7 + 2 noise
-        _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=17)
+    with pytest.raises(ValueError, match=r"at least 2 \* ndim = 20"):       # + 2 noise levels
+        _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=19)
     with pytest.raises(ValueError, match="on_unconverged must be 'warn' or 'raise'"):
         _sample(ds, on_unconverged="ignore")
     with pytest.raises(ValueError, match="n_samples must be a positive integer"):
@@ -102,7 +104,7 @@ def test_unconverged_chain_raises_with_tau():
     ds = _room(60)
     with pytest.raises(bc.NotConvergedError, match="did not converge within max_steps=30") as e:
         _sample(ds, max_steps=30, n_tune=20, on_unconverged="raise", rng=0)
-    assert e.value.tau is not None and np.shape(e.value.tau) == (7,)
+    assert e.value.tau is not None and np.shape(e.value.tau) == (8,)     # + outlier fraction
     assert isinstance(e.value.posterior, bc.Posterior) and not e.value.posterior.converged
 
 
@@ -130,6 +132,7 @@ def _check_noise(post, names, truths):
     """The truth lies within 3.3 posterior sd of each level's posterior mean (a calibrated,
     near-Gaussian posterior misses with probability 1e-3 per level)."""
     assert post.converged
+    names = names + ("outlier_frac",)                   # the mixture is on by default
     assert post.noise_names == names
     assert post.noise_samples.shape == (post.n_samples, len(names))
     assert post.tau.shape == (7 + len(names),)
