@@ -78,6 +78,10 @@ def default_prior(nominal=None):
 
 
 def _check_dist(name, dist):
+    if isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
+        raise TypeError(f"prior[{name!r}] must be a frozen scipy.stats distribution, got the "
+                        f"unfrozen {dist.name!r}: give its parameters, e.g. "
+                        f"scipy.stats.{dist.name}(loc=..., scale=...)")
     if not (hasattr(dist, "logpdf") and hasattr(dist, "ppf") and hasattr(dist, "rvs")):
         raise TypeError(f"prior[{name!r}] must be a scipy.stats frozen continuous distribution "
                         f"(with logpdf, ppf, rvs), got {type(dist).__name__}")

@@ -92,6 +92,9 @@ def test_prior_rejects_unknown_names_and_non_distributions():
         Prior({"h": 200.0})
     with pytest.raises(TypeError, match="prior must be a dict"):
         Prior([stats.norm(1, 1)])
+    # an unfrozen distribution has logpdf/ppf/rvs too, but evaluates at loc=0, scale=1
+    with pytest.raises(TypeError, match=r"prior\['xi'\] must be a frozen.*unfrozen 'norm'"):
+        Prior({"xi": stats.norm})
 
 
 def test_logpdf_paper_parameters_is_the_sum_of_the_marginals():
