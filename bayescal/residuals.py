@@ -1,7 +1,8 @@
 """Residual checks behind the residual figures and the report's warnings.
 
 * :func:`posterior_residuals`: standardized pixel residuals under posterior
-  draws, ``(pixel - project(params_s, point_s)) / sigma_px_s`` for joint draws
+  draws (a thin call of :func:`bayescal.checks.posterior_predictive_residuals`),
+  ``(pixel - project(params_s, point_s)) / sigma_px_s`` for joint draws
   ``s``. In a linear-Gaussian model these are exactly N(0, 1) when the model
   is right (the fit's shrinkage ``sigma^2 (I - H)`` plus the posterior spread
   ``sigma^2 H`` add back to ``sigma^2 I``), so the N(0, 1) overlay is the right
@@ -22,17 +23,39 @@ import numpy as np
 
 from ._validation import resolve_rng
 from .camera import project
-from .parameters import SensorParams
 
-__all__ = ["posterior_residuals", "least_squares_residuals", "noise_warnings",
+__all__ = ["posterior_residuals", "least_squares_residuals", "noise_warnings", "draw_indices",
            "NOISE_RATIO_WARN"]
 
 #: estimated / used pixel noise outside [1 / NOISE_RATIO_WARN, NOISE_RATIO_WARN] is reported
 NOISE_RATIO_WARN = 2.0
 
 
-def posterior_residuals(posterior, *, n_draws=100, rng=None):
-    """Standardized pixel residuals under joint posterior draws.
+def draw_indices(n_samples, n_draws):
+    """Evenly thinned indices of at most ``n_draws`` of ``n_samples`` draws, shape (n,)."""
+    return np.unique(np.linspace(0, n_samples - 1, min(int(n_draws), n_samples)).round()
+                     .astype(int))
+
+
+def _scene_sd(posterior, idx):
+    """Scene sds per draw, broadcastable to (n, N, 3), mm (inf without scene rows)."""
+    names = tuple(getattr(posterior, "noise_names", ()))
+    approx = getattr(posterior, "approx_points", None)
+    if getattr(posterior, "sigma_scene", None) is not None:
+        return np.asarray(posterior.sigma_scene, dtype=float)
+    if "kappa" in names and approx is not None:
+        kappa = np.exp(posterior.noise_samples[idx, names.index("kappa")])
+        rho = np.hypot(approx[:, 0], approx[:, 1])
+        return kappa[:, None, None] * rho[None, :, None]
+    return np.inf
+
+
+def posterior_residuals(posterior, *, n_draws=100, rng=None, scene=False):
+    """Standardized residuals under joint posterior draws.
+
+    A thin call of :func:`bayescal.checks.posterior_predictive_residuals` on
+    ``n_draws`` evenly thinned draws, with each draw's noise levels, in the
+    sign convention of the residual figures: data minus model.
 
     Parameters
     ----------
@@ -41,21 +64,29 @@ def posterior_residuals(posterior, *, n_draws=100, rng=None):
         Draws used (evenly thinned).
     rng : numpy.random.Generator, int or None
         Unused for evenly thinned draws; accepted for symmetry.
+    scene : bool, optional
+        Also return the scene residuals.
 
     Returns
     -------
-    ndarray, shape (n_draws, N, 2)
-        Dimensionless (residual / pixel noise of the draw).
+    pixel : ndarray, shape (n_draws, N, 2)
+        Dimensionless ``(pixel - project(params_s, point_s)) / sigma_px_s``.
+    scene : ndarray, shape (n_draws, N, 3)
+        Only with ``scene=True``: ``(approx - point_s) / sigma_scene_s``, NaN
+        on axes without scene information (and everywhere for a floor plan).
     """
+    from .checks import posterior_predictive_residuals
+
     resolve_rng(rng)
-    S = posterior.n_samples
-    idx = np.unique(np.linspace(0, S - 1, min(int(n_draws), S)).round().astype(int))
-    sig = posterior._sigma_px_samples()[idx]
-    out = np.empty((len(idx),) + posterior.pixels.shape)
-    for k, s in enumerate(idx):
-        p = SensorParams.from_array(posterior.param_samples[s])
-        out[k] = (posterior.pixels - project(p, posterior.point_samples[s])) / sig[k]
-    return out
+    idx = draw_indices(posterior.n_samples, n_draws)
+    approx = getattr(posterior, "approx_points", None)
+    points = posterior.point_samples[idx]
+    if approx is None or np.shape(approx) != points.shape[1:]:
+        approx = points.mean(axis=0)              # no scene rows: any finite stand-in
+    pix, sc = posterior_predictive_residuals(
+        posterior.param_samples[idx], points, posterior.pixels, approx,
+        sigma_px=posterior._sigma_px_samples()[idx], sigma_scene=_scene_sd(posterior, idx))
+    return (-pix, -sc) if scene else -pix
 
 
 def _projection_jacobian(params, points):

@@ -96,7 +96,13 @@ def test_simulate_writes_inputs_that_match_the_library(sim):
     manifest = json.loads((sim / MANIFEST).read_text())
     assert sorted(manifest["files"]) == sorted(
         ["laser.csv", "laser.npz", "calibration.npz", "grid.csv", "calib_laser.csv",
-         "truth.json"])
+         "truth.json", "walls.csv"])
+    from bayescal.planfile import load_walls
+
+    plan, _ = load_walls(sim / "walls.csv")        # the simulation's rough plan, sds included
+    np.testing.assert_allclose(plan.segments, ds.floor_plan.segments, rtol=1e-15)
+    np.testing.assert_allclose(plan.distance_sd, ds.floor_plan.distance_sd, rtol=1e-15)
+    np.testing.assert_allclose(plan.angle_sd, ds.floor_plan.angle_sd, rtol=1e-15)
 
 
 def test_simulate_bad_option_writes_nothing(tmp_path):
