@@ -64,7 +64,8 @@ __all__ = [
 RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
-_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene")
+_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "walls", "wall_covariance",
+                 "wall_index", "azimuths")
 
 
 class ConvergenceError(RuntimeError):

@@ -372,6 +372,34 @@ def test_bayes_reconstruct_and_report(bayes_run, sim, tmp_path):
     assert (tmp_path / "rep" / "corner.png").is_file()
 
 
+def test_bayes_report_has_the_predictive_check_and_outlier_column(bayes_run):
+    folder, _ = bayes_run
+    md = (folder / "report.md").read_text()
+    assert "Posterior predictive check: " in md and (folder / "predictive.png").is_file()
+    post = bc.load_posterior(folder / "posterior.npz")
+    header = (folder / "points.csv").read_text().splitlines()[0].split(",")
+    # the column is there exactly when the posterior carries outlier probabilities
+    assert ("outlier_prob" in header) == (getattr(post, "outlier_prob", None) is not None)
+
+
+def test_posterior_residuals_is_the_predictive_check_residuals(bayes_run):
+    from bayescal.checks import posterior_predictive_residuals
+    from bayescal.residuals import draw_indices, posterior_residuals
+
+    post = bc.load_posterior(bayes_run[0] / "posterior.npz")
+    pix, scene = posterior_residuals(post, n_draws=7, scene=True)
+    idx = draw_indices(post.n_samples, 7)
+    ref_pix, ref_scene = posterior_predictive_residuals(
+        post.param_samples[idx], post.point_samples[idx], post.pixels, post.approx_points,
+        sigma_px=post._sigma_px_samples()[idx], sigma_scene=post.sigma_scene)
+    np.testing.assert_allclose(pix, -ref_pix, rtol=1e-12)
+    np.testing.assert_allclose(scene, -ref_scene, rtol=1e-12)
+    # data minus model: the first draw's first pixel by hand
+    p0 = bc.SensorParams.from_array(post.param_samples[idx[0]])
+    hand = (post.pixels[0] - bc.project(p0, post.point_samples[idx[0], 0]))
+    np.testing.assert_allclose(pix[0, 0] * post._sigma_px_samples()[idx[0]], hand, rtol=1e-9)
+
+
 # -- study and demo --------------------------------------------------------------------
 
 def test_study_unknown_name_lists_available(tmp_path):
