@@ -21,7 +21,7 @@ from .errors import UsageError
 __all__ = ["load_truth", "check_geometry", "warn_duplicates", "sigma_px_setting",
            "sigma_scene_setting", "library_messages", "flagged_lines", "MIN_POINTS",
            "MIN_AZIMUTH_SPAN_DEG", "OUTLIER_FLAG", "rows_to_lines", "noise_collapse_message",
-           "flagged_text"]
+           "flagged_text", "located_summary"]
 
 #: outlier probability above which an input line is listed as flagged
 OUTLIER_FLAG = 0.5
@@ -260,3 +260,25 @@ def flagged_text(data, outlier_prob):
         return None
     return (f"{len(lines)} of {data.n_points} points flagged as outliers (outlier_prob > "
             f"{OUTLIER_FLAG:g}): {data.pixel_table.path} {_unit(data)} {_lines_text(lines)}")
+
+
+def located_summary(result, data):
+    """``result.summary()`` with its outlier line naming file lines instead of 0-based rows.
+
+    Parameters
+    ----------
+    result : CalibrationResult or Posterior
+    data : LaserData or None
+
+    Returns
+    -------
+    str
+    """
+    text = result.summary()
+    prob = getattr(result, "outlier_prob", None)
+    if data is None or prob is None or np.shape(prob) != (data.n_points,):
+        return text
+    lines = [ln for ln in text.splitlines() if not ln.startswith("outliers (probability")]
+    lines.append(flagged_text(data, prob) or f"outliers (outlier_prob > {OUTLIER_FLAG:g}): "
+                 f"none of the {data.n_points} points")
+    return "\n".join(lines)

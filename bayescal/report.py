@@ -98,8 +98,12 @@ def _residual_figure(result, info, pixels):
     spx = _sigma_used(result, info)
     ssc = result.extras.get("sigma_scene")
     raw, z = least_squares_residuals(result, pixels, spx, ssc)
-    how = ("each divided by its sd after the fit, sigma_px sqrt(1 - leverage)" if ssc is not None
-           else f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})")
+    if result.extras.get("walls") is not None:
+        how = "across each point's track on its wall (its azimuth absorbs the other), / sd"
+    elif ssc is not None:
+        how = "each divided by its sd after the fit, sigma_px sqrt(1 - leverage)"
+    else:
+        how = f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})"
     return plot_pixel_residuals(pixels, z, raw=raw, title=f"Least-squares pixel residuals, {how}")
 
 
@@ -215,7 +219,7 @@ def _checks_section(doc, check, flagged):
 
 
 def build_document(result, info, *, rows, figs, acc, truth, warnings, title, check=None,
-                   flagged=None):
+                   flagged=None, summary=None):
     """The report as a :class:`~bayescal.document.Document`."""
     doc = Document(title)
     _intro(doc, result, info)
@@ -232,7 +236,7 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title, che
     if info.get("method") != "sequential":
         _checks_section(doc, check, flagged)
     doc.heading("Diagnostics")
-    doc.preformatted(result.summary())
+    doc.preformatted(summary or result.summary())
     doc.heading("Figures")
     for key in ("plan", "corner", "predictive", "residuals", "reconstruction", "image"):
         if key in figs:
@@ -271,7 +275,7 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     """
     out = pathlib.Path(out)
     title = title or f"bayescal calibration report ({info.get('method', 'bayes')})"
-    from .inputchecks import flagged_text
+    from .inputchecks import flagged_text, located_summary
     from .reportchecks import predictive_check
 
     check = predictive_check(result, info, data.pixels)
@@ -280,7 +284,8 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,
                          acc=acc, truth=truth, warnings=_warnings(result, info, data),
                          title=title, check=check,
-                         flagged=flagged_text(data, getattr(result, "outlier_prob", None)))
+                         flagged=flagged_text(data, getattr(result, "outlier_prob", None)),
+                         summary=located_summary(result, data))
     md, ht = write_document(doc, out, "report")
     files = {k: p for k, (_, p) in figs.items()}
     files.update(markdown=md, html=ht)

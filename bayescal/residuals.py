@@ -138,9 +138,16 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
     raw : ndarray, shape (N, 2)
         px.
     z : ndarray, shape (N, 2)
-        Dimensionless; about N(0, 1) for a correct model.
+        Dimensionless; about N(0, 1) for a correct model. For a floor-plan
+        result (``extras["walls"]``) each point has one free coordinate, its
+        azimuth, which absorbs the residual along the image direction it moves
+        in: ``z[:, 0]`` is the residual across that direction divided by
+        ``sigma_px sqrt(1 - (7 + 2W) / N)`` and ``z[:, 1]`` is NaN (one degree
+        of freedom per point).
     """
     raw = np.asarray(pixels, float) - project(result.params, result.points)
+    if result.extras.get("walls") is not None and result.extras.get("azimuths") is not None:
+        return raw, _plan_z(result, raw, sigma_px)
     if sigma_scene is None:
         frac = 1.0 - result.n_unknowns / max(result.n_residuals, 1)
         return raw, raw / (sigma_px * np.sqrt(max(frac, 1e-12)))
@@ -152,6 +159,25 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
     h = np.einsum("nij,njk,nik->ni", top, np.linalg.inv(info), top)
     var = sigma_px**2 * np.clip(1.0 - h, 1e-4, 1.0)
     return raw, raw / np.sqrt(var)
+
+
+def _plan_z(result, raw, sigma_px, eps=1e-6):
+    """One standardized residual per point of a floor-plan fit, shape (N, 2) (column 1 NaN)."""
+    from .floorplan import plan_point
+
+    walls = np.asarray(result.extras["walls"], float)
+    k = np.asarray(result.extras["wall_index"]).astype(int)
+    t = np.asarray(result.extras["azimuths"], float)
+    theta = result.params.to_identifiable()
+    d, a = walls[k, 0], walls[k, 1]
+    du = (project(result.params, plan_point(theta, t + eps, d, a))
+          - project(result.params, plan_point(theta, t - eps, d, a))) / (2 * eps)
+    n = np.column_stack([-du[:, 1], du[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    share = (result.n_unknowns - len(t)) / max(len(t), 1)   # 7 + 2W globals over N points
+    z = np.full(raw.shape, np.nan)
+    z[:, 0] = np.einsum("ni,ni->n", raw, n) / (sigma_px * np.sqrt(max(1.0 - share, 1e-12)))
+    return z
 
 
 def noise_warnings(result, sigma_px_used):

@@ -112,10 +112,18 @@ def _bayes(job):
     if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
         kw["outliers"] = False
     if job.plan is None:
-        kw["sigma_scene"] = job.sigma_scene
-    post = bc.sample_posterior(data.pixels, job.plan if job.plan is not None
-                               else data.approx_points, sigma_px=job.sigma_px,
-                               prior=job.prior, rng=job.seed, progress=job.progress, **kw)
+        post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
+                                   sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
+                                   progress=job.progress, **kw)
+    else:
+        try:
+            post = bc.sample_posterior(data.pixels, job.plan, sigma_px=job.sigma_px,
+                                       prior=job.prior, rng=job.seed, progress=job.progress,
+                                       **kw)
+        except TypeError as exc:
+            raise Failure("--method bayes with --walls needs a sampler that takes a floor "
+                          f"plan; this bayescal's does not ({exc}). Use --method "
+                          "simultaneous") from None
     if post.converged or job.allow_unconverged:
         return post, None
     return post, ("the posterior sampler did not converge (chains shorter than 50 "
@@ -232,13 +240,9 @@ def run_calibrate(job, folder):
                                   truth=job.truth, prior=_prior_of(job), title=job.title)
         folder.add(*files.values())
     folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc)))
-    print(result.summary())
-    if job.data is not None:
-        from .inputchecks import flagged_text
+    from .inputchecks import located_summary
 
-        text = flagged_text(job.data, getattr(result, "outlier_prob", None))
-        if text:
-            print(text)
+    print(located_summary(result, job.data))
     if acc:
         print(f"mean 3D error against the truth: {acc['mean_error_mm']:.1f} mm")
     print(f"wrote {job.out}/" + (POSTERIOR_FILE if job.method == "bayes" else RESULT_FILE)

@@ -170,6 +170,7 @@ def test_gross_errors_are_flagged_by_file_line(sim, tmp_path, capsys, monkeypatc
     assert rc == 0, cap.err
     want = ", ".join(str(i + 1) for i in bad)            # file line numbers, header included
     assert f"d.csv lines {want}" in cap.out, cap.out
+    assert "outliers (probability > 0.5)" not in cap.out     # no 0-based rows anywhere
     assert f"d.csv lines {want}" in (tmp_path / "o" / "report.md").read_text()
     header = (tmp_path / "o" / "points.csv").read_text().splitlines()[0].split(",")
     prob = np.loadtxt(tmp_path / "o" / "points.csv", delimiter=",", skiprows=1)[
@@ -221,3 +222,20 @@ def test_library_duplicate_warning_names_file_lines(sim, tmp_path, capsys, monke
     assert rc == 0, cap.err
     assert f"laser.csv: exact duplicate lines {first + 3}, {first + 10}" in cap.err
     assert "(0-based)" not in cap.err
+
+
+def test_plan_residuals_are_standard_normal_across_the_track():
+    """One residual per point, across the image track its azimuth moves it along.
+
+    N = 200 points: the RMS of N(0, 1) residuals has sd ~ 1/sqrt(2N) = 0.05, so the band
+    0.85-1.15 is 3 sd each side (false failure ~3e-3 for a fresh seed; the seed is fixed).
+    """
+    from bayescal.residuals import least_squares_residuals
+
+    ds = bc.simulate_room(range_mm=1000, n_points=200, sigma_px=0.5, approx_error=0.05,
+                          rng=11)
+    res = bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.5)
+    raw, z = least_squares_residuals(res, ds.pixels, 0.5)
+    assert np.all(np.isnan(z[:, 1]))
+    rms = float(np.sqrt(np.mean(z[:, 0] ** 2)))
+    assert 0.85 < rms < 1.15, rms
