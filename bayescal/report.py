@@ -278,7 +278,7 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     from .inputchecks import flagged_text, located_summary
     from .reportchecks import predictive_check
 
-    check = predictive_check(result, info, data.pixels)
+    check = predictive_check(result, info, data.pixels, approx_points=data.approx_points)
     figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
     acc = accuracy(recon[0] if recon is not None else result.points, truth)
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,

@@ -6,12 +6,16 @@ on a calibration result:
 * **Bayes**: residuals of the pixels (and of the approximate points, when
   there are any) under 200 evenly thinned joint posterior draws, each with its
   own noise levels (:func:`bayescal.residuals.posterior_residuals`);
-* **least squares** (simultaneous): the pixel residuals at the solution, each
-  divided by its own sd after the fit (``sigma_px sqrt(1 - leverage)``,
-  :func:`bayescal.residuals.least_squares_residuals`), which are N(0, 1) when
-  the model is right; the check compares them with 200 replicates. The scene
-  residuals of a least-squares fit are not used (their leverage correction is
-  not available), so the neighbour-correlation statistic is Bayes-only.
+* **least squares** (simultaneous): the residuals at the solution made
+  independent N(0, 1) for a correct model: per point, its whitened residual
+  vector (pixel and scene rows) expressed in an orthonormal basis of what the
+  fit leaves free, one component per finite scene axis
+  (:func:`bayescal.residuals.least_squares_scene_residuals`); a floor-plan fit
+  has one pixel residual per point across its image track
+  (:func:`~bayescal.residuals.least_squares_residuals`). The check compares
+  them with 200 replicates. Without the scene sds the fit used (a rebuilt
+  report of a run whose scene noise was inferred) only the pixel residuals,
+  divided by the global degrees-of-freedom factor, are checked: approximate.
 
 Points flagged as outliers (``outlier_prob > 0.5``) are left out of the check:
 it tests the inlier model, the outliers being accounted for by the mixture.
@@ -33,26 +37,38 @@ def _is_posterior(result):
     return hasattr(result, "param_samples")
 
 
-def _residuals(result, info, pixels):
+def _residuals(result, info, pixels, approx_points=None):
     """(pixel (S, N, 2), scene (S, N, 3), uses azimuth) or None when no check applies."""
-    from .residuals import least_squares_residuals, posterior_residuals
+    from .residuals import (
+        least_squares_residuals,
+        least_squares_scene_residuals,
+        posterior_residuals,
+    )
 
     if _is_posterior(result):
         pix, sc = posterior_residuals(result, n_draws=N_CHECK_DRAWS, scene=True)
         return pix, sc, bool(np.isfinite(sc).any())
     if result.points is None or result.method == "sequential":
         return None
-    spx = (info.get("sigma_px") or result.extras.get("sigma_px")
+    noise = result.extras.get("noise") or {}
+    spx = (info.get("sigma_px") or result.extras.get("sigma_px") or noise.get("sigma_px")
            or result.sigma_px_estimated)
     if not spx:
         return None
     ssc = result.extras.get("sigma_scene")
-    _, z = least_squares_residuals(result, pixels, spx, ssc)
-    pix = np.broadcast_to(z, (N_CHECK_DRAWS,) + z.shape)
-    return pix, np.full(pix.shape[:2] + (3,), np.nan), False
+    if ssc is None and noise.get("kappa") and approx_points is not None:
+        rho = np.hypot(approx_points[:, 0], approx_points[:, 1])
+        ssc = np.repeat((noise["kappa"] * rho)[:, None], 3, axis=1)
+    if ssc is None or approx_points is None:          # a floor plan, or unknown scene sds
+        _, z = least_squares_residuals(result, pixels, spx, ssc)
+        pix = np.broadcast_to(z, (N_CHECK_DRAWS,) + z.shape)
+        return pix, np.full(pix.shape[:2] + (3,), np.nan), False
+    zs = least_squares_scene_residuals(result, pixels, approx_points, spx, ssc)
+    pix = np.full((N_CHECK_DRAWS,) + pixels.shape, np.nan)
+    return pix, np.broadcast_to(zs, (N_CHECK_DRAWS,) + zs.shape), True
 
 
-def predictive_check(result, info, pixels, *, rng=0):
+def predictive_check(result, info, pixels, *, approx_points=None, rng=0):
     """Global posterior predictive check of a calibration result.
 
     Parameters
@@ -62,6 +78,9 @@ def predictive_check(result, info, pixels, *, rng=0):
         The run record (``sigma_px`` used).
     pixels : ndarray, shape (N, 2)
         px.
+    approx_points : ndarray, shape (N, 3), optional
+        mm; with them (and the scene sds the fit used) a least-squares check
+        also tests the scene residuals.
     rng : numpy.random.Generator, int or None
         For the replicated residuals.
 
@@ -75,7 +94,7 @@ def predictive_check(result, info, pixels, *, rng=0):
     """
     from .checks import posterior_predictive_check
 
-    res = _residuals(result, info, pixels)
+    res = _residuals(result, info, pixels, approx_points)
     if res is None:
         return None
     pix, sc, use_az = res

@@ -24,7 +24,8 @@ import numpy as np
 from ._validation import resolve_rng
 from .camera import project
 
-__all__ = ["posterior_residuals", "least_squares_residuals", "noise_warnings", "draw_indices",
+__all__ = ["posterior_residuals", "least_squares_residuals", "least_squares_scene_residuals",
+           "noise_warnings", "draw_indices",
            "NOISE_RATIO_WARN"]
 
 #: estimated / used pixel noise outside [1 / NOISE_RATIO_WARN, NOISE_RATIO_WARN] is reported
@@ -151,14 +152,76 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
     if sigma_scene is None:
         frac = 1.0 - result.n_unknowns / max(result.n_residuals, 1)
         return raw, raw / (sigma_px * np.sqrt(max(frac, 1e-12)))
+    h = _local_leverage(result, sigma_px, sigma_scene)[:, :2]
+    var = sigma_px**2 * np.clip(1.0 - h, 1e-4, 1.0)
+    return raw, raw / np.sqrt(var)
+
+
+def _local_design(result, sigma_px, sigma_scene):
+    """Each point's whitened local design ``A`` (N, 5, 2): 2 pixel rows, 3 scene rows."""
     T = _cone_tangent(result.params, result.points)
     top = _projection_jacobian(result.params, result.points) @ T / sigma_px      # (N, 2, 2)
     bottom = T / np.broadcast_to(np.asarray(sigma_scene, float), result.points.shape)[..., None]
-    A = np.concatenate([top, bottom], axis=1)                                    # (N, 5, 2)
+    return np.concatenate([top, bottom], axis=1)
+
+
+def _local_leverage(result, sigma_px, sigma_scene):
+    """Diagonal of each point's local hat matrix, shape (N, 5): 2 pixel rows, 3 scene rows."""
+    A = _local_design(result, sigma_px, sigma_scene)
     info = np.swapaxes(A, 1, 2) @ A
-    h = np.einsum("nij,njk,nik->ni", top, np.linalg.inv(info), top)
-    var = sigma_px**2 * np.clip(1.0 - h, 1e-4, 1.0)
-    return raw, raw / np.sqrt(var)
+    return np.einsum("nij,njk,nik->ni", A, np.linalg.inv(info), A)
+
+
+def least_squares_scene_residuals(result, pixels, approx_points, sigma_px, sigma_scene):
+    """Independent N(0, 1) residuals of a per-point least-squares fit, one per scene axis.
+
+    Each point's whitened residual vector ``r`` (2 pixel rows, 3 scene rows;
+    the rows of axes with ``sigma_scene = inf`` dropped) has covariance
+    ``I - H`` after the fit, ``H`` the local hat matrix of its 2 free
+    coordinates on the cone: rank = the number of finite scene axes. Its
+    components along the orthonormalized ``(I - H) e_k`` (``e_k`` the scene
+    row of axis ``k``, Gram-Schmidt in the order x, y, z) are independent
+    N(0, 1) for a correct model, and keep the sign and the axis of the scene
+    error, so that errors shared by neighbouring points stay visible. The 7
+    global parameters' share of the residuals is neglected.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Per-point simultaneous result with ``points`` (N, 3).
+    pixels : ndarray, shape (N, 2)
+        px.
+    approx_points : ndarray, shape (N, 3)
+        mm.
+    sigma_px : float
+        px.
+    sigma_scene : ndarray, broadcastable to (N, 3)
+        mm; inf = no information on that axis.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Dimensionless; NaN on axes with ``sigma_scene = inf``.
+    """
+    pts = result.points
+    ss = np.broadcast_to(np.asarray(sigma_scene, float), pts.shape)
+    fin = np.isfinite(ss)
+    A = _local_design(result, sigma_px, np.where(fin, ss, np.inf))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.concatenate([(np.asarray(pixels, float) - project(result.params, pts)) / sigma_px,
+                            np.where(fin, (np.asarray(approx_points, float) - pts) / ss, 0.0)],
+                           axis=1)                                               # (N, 5)
+    H = A @ np.linalg.inv(np.swapaxes(A, 1, 2) @ A) @ np.swapaxes(A, 1, 2)
+    B = (np.eye(5) - H)[:, :, 2:] * fin[:, None, :]                              # (N, 5, 3)
+    z = np.full(pts.shape, np.nan)
+    for i in range(len(pts)):
+        cols = np.flatnonzero(fin[i])
+        if cols.size == 0:
+            continue
+        q, rr = np.linalg.qr(B[i][:, cols])
+        q = q * np.sign(np.diag(rr))[None, :]                                    # Gram-Schmidt
+        z[i, cols] = q.T @ r[i]
+    return z
 
 
 def _plan_z(result, raw, sigma_px, eps=1e-6):
