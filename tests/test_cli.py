@@ -7,6 +7,7 @@ file, line and column, and that nothing was written.
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 
@@ -458,8 +459,12 @@ def test_demo_small(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     out = tmp_path / "out"
     for f in ("index.html", "index.md", "data/laser.csv", "sequential/report.html",
-              "simultaneous/report.html", "bayes/report.html", "bayes/posterior.npz"):
+              "simultaneous/report.html", "bayes/report.html", "bayes/posterior.npz",
+              "data/walls.csv", "floorplan/report.html", "floorplan/plan.png"):
         assert (out / f).is_file(), f
+    index = (out / "index.md").read_text()
+    for link in re.findall(r"\]\(([^)]+)\)", index):        # every link and figure resolves
+        assert (out / link).is_file(), link
     r = run("demo", "--out", "out", "--n-points", 30, cwd=tmp_path)
     assert r.returncode == 2 and "--force" in r.stderr
 
@@ -471,6 +476,7 @@ def test_demo_full_as_make_demo(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     index = (tmp_path / "out" / "index.md").read_text()
     assert "| simultaneous | ok |" in index and "| bayes | ok |" in index
+    assert "| floorplan | ok |" in index
 
 
 # -- report helpers (in process) -----------------------------------------------------------
