@@ -85,11 +85,14 @@ def _study_description():
 _COMMANDS = {
     "simulate": (op.SIMULATE_OPTIONS, "simulate a room and write CSV/NPZ inputs and a truth file",
                  "Simulate the paper's room and write laser.csv and laser.npz (u, v, x, y, z, "
-                 "sigma_x/y/z, sigma_px), calibration.npz, grid.csv, calib_laser.csv and "
+                 "sigma_x/y/z, sigma_px), walls.csv (the room's rough floor plan, for "
+                 "calibrate --walls), calibration.npz, grid.csv, calib_laser.csv and "
                  "truth.json into --out."),
-    "calibrate": (op.CALIBRATE_OPTIONS, "calibrate from laser pixels and approximate points",
+    "calibrate": (op.CALIBRATE_OPTIONS, "calibrate from laser pixels and approximate points "
+                  "or a rough floor plan",
                   "Calibrate the sensor. simultaneous: MAP least squares on pixels and "
-                  "approximate points (the paper's method, with weak priors); bayes: the "
+                  "approximate points, or a rough floor plan with --walls (the paper's "
+                  "method, with weak priors); bayes: the "
                   "posterior (emcee); sequential: the classical two-stage method from "
                   "calibration planes. Writes result.json or posterior.npz, run.json, "
                   "points.csv, PNG figures, report.md and report.html into --out. Every input "

@@ -28,6 +28,8 @@ File formats (``docs/cli.md`` has examples):
   required), or two CSVs: the pattern grid (``plane, u, v, x, y, z``) and the
   laser on the planes (``plane, u, v``).
 
+* **Floor plans** (``calibrate --walls``): see :mod:`bayescal.planfile`.
+
 Every reader raises :class:`InputError` (a ``ValueError``) naming the file,
 the line (or array index) and the column, and what was expected.
 """

@@ -13,24 +13,25 @@ from __future__ import annotations
 import pathlib
 import shlex
 import sys
-import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from . import options as op
 from .errors import UsageError
+from .inputchecks import (
+    MIN_AZIMUTH_SPAN_DEG,
+    MIN_POINTS,
+    check_geometry,
+    load_truth,
+    sigma_px_setting,
+    sigma_scene_setting,
+    warn_duplicates,
+)
 from .outputs import check_out
 
 __all__ = ["SimulateJob", "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
            "load_truth", "check_geometry", "MIN_POINTS", "MIN_AZIMUTH_SPAN_DEG"]
-
-#: fewest laser points a calibration accepts: 2 N pixel coordinates must exceed the
-#: 7 identifiable parameters plus the 2 noise levels that may be inferred
-MIN_POINTS = 5
-#: smallest azimuth span (degrees) of the laser points: points on one azimuth leave
-#: the principal point and the ring radii undetermined
-MIN_AZIMUTH_SPAN_DEG = 10.0
 
 
 def _opts(table, given):
@@ -45,67 +46,6 @@ def _opts(table, given):
 def _resolved(path):
     return None if path is None else str(pathlib.Path(path).resolve())
 
-
-def load_truth(path, n_points=None):
-    """Read a ``truth.json`` written by ``bayescal simulate``; check its shape.
-
-    Parameters
-    ----------
-    path : path or None
-    n_points : int, optional
-        Number of laser points of the data it goes with.
-
-    Returns
-    -------
-    dict or None
-    """
-    if path is None:
-        return None
-    from .io import read_json
-    from .parameters import PARAM_NAMES
-
-    truth = read_json(path)
-    if not isinstance(truth, dict) or not isinstance(truth.get("params"), dict):
-        raise UsageError(f"--truth {path}: expected a JSON object with 'params' (as written by "
-                         "bayescal simulate)")
-    missing = [n for n in PARAM_NAMES if n not in truth["params"]]
-    if missing:
-        raise UsageError(f"--truth {path}: 'params' lacks {', '.join(missing)}")
-    pts = truth.get("points")
-    if pts is not None:
-        shape = np.shape(pts)
-        if len(shape) != 2 or shape[1] != 3:
-            raise UsageError(f"--truth {path}: 'points' has shape {shape}; expected (N, 3)")
-        if n_points is not None and shape[0] != n_points:
-            raise UsageError(f"--truth {path}: it has {shape[0]} points but the data have "
-                             f"{n_points}; expected the truth of the same simulation")
-    return truth
-
-
-def check_geometry(data):
-    """Refuse laser data that cannot determine the sensor, before any fitting.
-
-    Raises
-    ------
-    UsageError
-        Fewer than :data:`MIN_POINTS` points, or points spanning less than
-        :data:`MIN_AZIMUTH_SPAN_DEG` of azimuth.
-    """
-    where = ", ".join(map(str, data.paths))
-    if data.n_points < MIN_POINTS:
-        raise UsageError(f"{where}: {data.n_points} laser point(s); expected at least "
-                         f"{MIN_POINTS} (2 N pixel coordinates must exceed the 7 identifiable "
-                         "parameters and the noise levels)")
-    if data.approx_points is None:
-        return
-    az = np.sort(np.mod(np.arctan2(data.approx_points[:, 1], data.approx_points[:, 0]),
-                        2 * np.pi))
-    gaps = np.diff(np.concatenate([az, az[:1] + 2 * np.pi]))
-    span = np.degrees(2 * np.pi - gaps.max())
-    if span < MIN_AZIMUTH_SPAN_DEG:
-        raise UsageError(f"{where}: the laser points span {span:.2g} degrees of azimuth; "
-                         f"expected at least {MIN_AZIMUTH_SPAN_DEG:g} (points on one azimuth "
-                         "leave the principal point and the ring radii undetermined)")
 
 
 def _nominal_and_prior(nominal_path, prior_specs):
@@ -134,45 +74,6 @@ def _nominal_and_prior(nominal_path, prior_specs):
     prior = default_prior(nominal)
     prior.update(overrides)
     return nominal, prior
-
-
-def _sigma_px(value, data):
-    if value is None:
-        if data.sigma_px is not None:
-            return data.sigma_px, "from the file"
-        return None, "inferred"
-    if value == "infer":
-        return None, "inferred"
-    return float(value), "given"
-
-
-def _sigma_scene(spec, data):
-    infer = "inferred (relative to each point's horizontal range)"
-    if spec is None:
-        if data.sigma_scene is not None:
-            return data.sigma_scene, "per point and axis, from the file's sigma_x/y/z columns"
-        return None, infer
-    if spec.kind == "infer":
-        return None, infer
-    if spec.kind == "percent":
-        rho = np.hypot(data.approx_points[:, 0], data.approx_points[:, 1])
-        frac = spec.values[0] / 100.0
-        return np.repeat((frac * rho)[:, None], 3, axis=1), f"{spec.text} of each point's range"
-    vals = np.array(spec.values, float)
-    return np.broadcast_to(vals, (data.n_points, 3)).copy(), f"{spec.text} mm"
-
-
-def _warn_duplicates(data):
-    from .io import duplicate_rows
-
-    groups = duplicate_rows(data)
-    if groups:
-        unit = "lines" if data.pixel_table.kind == "csv" else "rows"
-        text = "; ".join(" and ".join(map(str, g)) for g in groups[:10])
-        more = f" (and {len(groups) - 10} more groups)" if len(groups) > 10 else ""
-        warnings.warn(f"{data.pixel_table.path}: exact duplicate {unit} {text}{more}: each copy "
-                      "counts as a separate measurement and shrinks the sds; remove the copies "
-                      "unless they are real repeated measurements", UserWarning, stacklevel=2)
 
 
 @dataclass(frozen=True)
@@ -231,6 +132,12 @@ class CalibrateJob:
         Where they came from, for the report.
     image_size : (int, int)
     seed, max_steps, progress, allow_unconverged, out, force, inputs, title, command
+    plan : FloorPlan or None
+        ``--walls``: the rough floor plan in place of approximate points.
+    outliers : bool
+        The per-point outlier mixture (off with ``--no-outliers``).
+    duplicate_lines : tuple of int
+        Lines already named in the duplicate-rows warning.
     """
 
     method: str
@@ -253,6 +160,9 @@ class CalibrateJob:
     inputs: dict = field(default_factory=dict)
     title: str | None = None
     command: str = ""
+    plan: object = None
+    outliers: bool = True
+    duplicate_lines: tuple = ()
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -262,20 +172,17 @@ class CalibrateJob:
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
         nominal, prior = _nominal_and_prior(o["nominal"], o["prior"])
-        data, calib = cls._read(o, nominal)
+        data, calib, plan = cls._read(o, nominal)
         truth = load_truth(o["truth"], None if data is None else data.n_points)
-        spx, spx_how = _sigma_px(o["sigma_px"], data) if data is not None else (None, "not used")
+        spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
+                        else (None, "not used"))
         ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
-                        else _sigma_scene(o["sigma_scene"], data))
-        if data is not None and data.approx_points is not None and method != "sequential":
-            from .model import LaserLikelihood
-
-            try:
-                LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
-            except (TypeError, ValueError) as exc:
-                raise UsageError(f"{', '.join(map(str, data.paths))}: {exc}") from None
-            check_geometry(data)
-        names = ("data", "points", "calibration", "calibration_laser", "nominal", "truth")
+                        else sigma_scene_setting(o["sigma_scene"], data))
+        if data is not None and method != "sequential":
+            _check_model_input(data, plan, nominal, spx, ssc)
+        dups = warn_duplicates(data) if data is not None and method != "sequential" else []
+        names = ("data", "points", "walls", "calibration", "calibration_laser", "nominal",
+                 "truth")
         check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
         return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
                    truth=truth, sigma_px=spx, sigma_px_how=spx_how, sigma_scene=ssc,
@@ -283,10 +190,12 @@ class CalibrateJob:
                    max_steps=o["max_steps"], progress=not o["no_progress"],
                    allow_unconverged=o["allow_unconverged"], out=pathlib.Path(o["out"]),
                    force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
-                   title=title, command=" ".join(shlex.quote(a) for a in sys.argv))
+                   title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
+                   plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups))
 
     @staticmethod
     def _read(o, nominal):
+        """(LaserData or None, CalibrationData or None, FloorPlan or None), all checked."""
         from .io import (
             check_pixels_in_image,
             check_projection_domain,
@@ -297,7 +206,8 @@ class CalibrateJob:
         method, data, calib = o["method"], None, None
         if method != "sequential" and o["data"] is None:
             raise UsageError(f"calibrate --method {method} needs the laser data file "
-                             "(u, v, x, y, z)")
+                             "(u, v, x, y, z; or u, v with --walls)")
+        plan = _read_plan(o)
         if method == "sequential":
             if o["calibration"] is None:
                 raise UsageError("calibrate --method sequential needs --calibration FILE (NPZ "
@@ -305,13 +215,53 @@ class CalibrateJob:
                                  "--calibration-laser)")
             calib = load_calibration_data(o["calibration"], o["calibration_laser"])
         if o["data"] is not None:
-            data = load_laser_data(o["data"], o["points"], need_points=method != "sequential")
+            data = load_laser_data(o["data"], o["points"],
+                                   need_points=method != "sequential" and plan is None)
             check_pixels_in_image(data.pixels, data.pixel_table, image_size=o["image_size"],
                                   margin=o["image_margin"])
+            if plan is not None:       # the plan is the scene: x, y, z columns are not used
+                data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
             if data.approx_points is not None:
                 check_projection_domain(data.approx_points, data.point_table, nominal)
-                _warn_duplicates(data)
-        return data, calib
+        return data, calib, plan
+
+
+def _read_plan(o):
+    """The FloorPlan of ``--walls`` (None without it); refuses options that clash with it."""
+    if o["walls"] is None:
+        return None
+    from .planfile import load_walls
+
+    for name, clash in (("method", o["method"] == "sequential"), ("points", o["points"]),
+                        ("sigma_scene", o["sigma_scene"] is not None)):
+        if clash:
+            flag = "--" + name.replace("_", "-")
+            raise UsageError(f"--walls {o['walls']}: not used with {flag}"
+                             + (" sequential" if name == "method" else "")
+                             + "; a floor plan replaces the approximate points and their sds "
+                             "(methods simultaneous and bayes)")
+    spec = o["distance_sd"]
+    if isinstance(spec, str):
+        spec = op.distance_sd_option(spec)
+    plan, _ = load_walls(o["walls"], distance_sd=spec, angle_sd=o["angle_sd"])
+    return plan
+
+
+def _check_model_input(data, plan, nominal, spx, ssc):
+    """Build the likelihood once to refuse input the model cannot use (exit 2)."""
+    where = ", ".join(map(str, data.paths))
+    try:
+        if plan is not None:
+            from .planmodel import PlanLikelihood
+
+            PlanLikelihood(data.pixels, plan, sigma_px=spx, azimuth_params=nominal)
+        else:
+            from .model import LaserLikelihood
+
+            LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{where}: {exc}") from None
+    check_geometry(data, center=(nominal.u0, nominal.v0))
 
 
 def _load_run(run):
@@ -363,11 +313,13 @@ class ReportJob:
     truth: dict | None
     out: pathlib.Path
     force: bool
+    plan: object = None
 
     @classmethod
     def build(cls, **options):
         """Validated job (:data:`~bayescal.options.REPORT_OPTIONS`)."""
         from .io import load_laser_data
+        from .planfile import plan_from_record
 
         o = _opts(op.REPORT_OPTIONS, options)
         run = pathlib.Path(o["run"])
@@ -375,12 +327,18 @@ class ReportJob:
         ins = info.get("inputs", {})
         if not ins.get("data"):
             raise UsageError(f"{run}: the run names no laser data file; nothing to report on")
+        try:
+            plan = plan_from_record(info.get("plan"))
+        except ValueError as exc:
+            raise UsageError(f"{run}: {exc}") from None
         data = load_laser_data(ins["data"], ins.get("points"),
-                               need_points=info.get("method") != "sequential")
+                               need_points=info.get("method") != "sequential" and plan is None)
+        if plan is not None:
+            data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
         truth = load_truth(o["truth"] or ins.get("truth"), data.n_points)
         check_out(o["out"], force=o["force"], inputs=[run] + data.paths)
         return cls(run=run, result=result, run_info=info, data=data, truth=truth,
-                   out=pathlib.Path(o["out"]), force=o["force"])
+                   out=pathlib.Path(o["out"]), force=o["force"], plan=plan)
 
 
 @dataclass(frozen=True)

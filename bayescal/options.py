@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_float",
            "nonneg_float", "image_size", "sigma_px_option", "sigma_scene_option",
-           "prior_option", "input_file", "input_folder", "SigmaScene",
+           "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
            "STUDY_OPTIONS", "DEMO_OPTIONS", "METHODS"]
 
@@ -123,6 +123,17 @@ def sigma_scene_option(text):
     if not any(math.isfinite(v) for v in vals):
         raise _BAD(f"{text!r} gives no information on any axis; expected at least one finite sd")
     return SigmaScene("mm", vals, text)
+
+
+def distance_sd_option(text):
+    """A wall-distance sd: a number of mm, or a percentage ``P%`` of each wall's distance.
+
+    Returns a float (mm) or ``("percent", P)``.
+    """
+    t = str(text).strip()
+    if t.endswith("%"):
+        return ("percent", positive_float(t[:-1]))
+    return positive_float(t)
 
 
 _PRIOR_RE = re.compile(r"^\s*(\w+)\s*=\s*(\w+)\s*\((.*)\)\s*$")
@@ -247,6 +258,19 @@ CALIBRATE_OPTIONS = (
                     "sigma_y, sigma_z (mm, empty or inf = unknown axis) and sigma_px (px)"}),
     Opt(("--points",), {"type": input_file, "help": "separate CSV/NPZ with x, y, z (and sigma "
                         "columns), same rows as the data file"}),
+    Opt(("--walls",), {"type": input_file, "metavar": "CSV", "help": "a rough floor plan in "
+                       "place of approximate points: CSV with x0, y0, x1, y1 (mm, one wall a "
+                       "line, counterclockwise around the sensor) and optional distance_sd "
+                       "(mm), angle_sd (rad); the data file then needs only u, v"}),
+    Opt(("--distance-sd",), {"type": distance_sd_option, "default": "5%", "metavar": "SD",
+                             "help": "--walls without a distance_sd column: sd of each wall's "
+                             "distance from the axis, mm or a percentage of it like '5%%'"}),
+    Opt(("--angle-sd",), {"type": positive_float, "default": 0.01, "metavar": "RAD",
+                          "help": "--walls without an angle_sd column: sd of each wall's "
+                          "orientation, rad"}),
+    Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
+                             "point is an inlier (default: each point may be an outlier, "
+                             "see outlier_prob in points.csv)"}),
     Opt(("--method",), {"choices": METHODS, "default": "simultaneous",
                         "help": "calibration method"}),
     Opt(("--calibration",), {"type": input_file, "help": "sequential: NPZ with "

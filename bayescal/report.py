@@ -10,8 +10,10 @@ self-contained ``report.html``.
 
 Contents: the parameter table (estimate or mean, sd, 90 % interval, the
 "prior-dominated" flag: the data do not determine the parameter, its prior
-does), warnings (noise estimate far from the noise used, unconverged runs),
-the accuracy against the truth, diagnostics, and the figures.
+does), warnings (noise estimate far from the noise used, unconverged runs,
+a failed predictive check), the accuracy against the truth, the model check
+and the input lines flagged as outliers (:mod:`bayescal.reportchecks`),
+diagnostics, and the figures (the plan view for a floor-plan run).
 """
 
 from __future__ import annotations
@@ -96,12 +98,39 @@ def _residual_figure(result, info, pixels):
     spx = _sigma_used(result, info)
     ssc = result.extras.get("sigma_scene")
     raw, z = least_squares_residuals(result, pixels, spx, ssc)
-    how = ("each divided by its sd after the fit, sigma_px sqrt(1 - leverage)" if ssc is not None
-           else f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})")
+    if result.extras.get("walls") is not None:
+        how = "across each point's track on its wall (its azimuth absorbs the other), / sd"
+    elif ssc is not None:
+        how = "each divided by its sd after the fit, sigma_px sqrt(1 - leverage)"
+    else:
+        how = f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})"
     return plot_pixel_residuals(pixels, z, raw=raw, title=f"Least-squares pixel residuals, {how}")
 
 
-def report_figures(out, result, info, *, data, recon, truth):
+def _check_figures(out, result, info, *, recon, truth, check):
+    """The plan view (plan runs) and the predictive-check plot: ``{key: (caption, path)}``."""
+    from .planfile import plan_from_record
+    from .plot_checks import plot_predictive_check
+    from .plotting import savefig
+    from .reportchecks import plan_figure
+
+    figs = {}
+    plan = plan_from_record(info.get("plan"))
+    if plan is not None:
+        figs["plan"] = ("Floor plan: the plan as given (dashed), the estimated walls with draws "
+                        "of their uncertainty, the points with their ellipses",
+                        savefig(plan_figure(result, plan, recon=recon, truth=truth),
+                                out / "plan.png"))
+    if check is not None:
+        fig = plot_predictive_check(check, azimuth=check["azimuth"],
+                                    outlier_prob=getattr(result, "outlier_prob", None))
+        figs["predictive"] = ("Posterior predictive check: each point's sum of squared "
+                              "standardized residuals against its 99.9 % model bound",
+                              savefig(fig, out / "predictive.png"))
+    return figs
+
+
+def report_figures(out, result, info, *, data, recon, truth, check=None):
     """Draw the report's figures into ``out``; returns ``{key: (caption, path)}``."""
     from .plotting import plot_corner, plot_image, plot_reconstruction_ellipses, savefig
 
@@ -124,6 +153,7 @@ def report_figures(out, result, info, *, data, recon, truth):
         tpar = None if truth is None else SensorParams(**truth["params"])
         figs["corner"] = ("Posterior of the eight parameters (corner plot)",
                           savefig(plot_corner(result, truth=tpar), out / "corner.png"))
+    figs.update(_check_figures(out, result, info, recon=recon, truth=truth, check=check))
     return figs
 
 
@@ -167,7 +197,29 @@ def _note():
             "identifiable combinations are " + ", ".join(IDENTIFIABLE_NAMES) + ".")
 
 
-def build_document(result, info, *, rows, figs, acc, truth, warnings, title):
+def _checks_section(doc, check, flagged):
+    doc.heading("Model check and outliers")
+    if flagged:
+        doc.paragraph(flagged + ".")
+    else:
+        doc.paragraph("No input line is flagged as an outlier (outlier_prob > 0.5 in "
+                      "points.csv).")
+    if check is None:
+        return
+    left = (f" ({check['excluded']} flagged outliers left out)" if check["excluded"] else "")
+    verdict = check["message"]
+    if not check["fits"]:
+        doc.warning(f"Posterior predictive check: {verdict}{left}. The intervals below assume "
+                    "the model; check the noise levels, the scene sds and the scene model "
+                    "(errors shared by a wall call for --walls).")
+    else:
+        doc.paragraph(f"Posterior predictive check: {verdict}{left}.")
+    doc.paragraph("p-values: " + ", ".join(f"{k} {v:.3g}" for k, v in
+                                          check["p_values"].items()) + ".")
+
+
+def build_document(result, info, *, rows, figs, acc, truth, warnings, title, check=None,
+                   flagged=None, summary=None):
     """The report as a :class:`~bayescal.document.Document`."""
     doc = Document(title)
     _intro(doc, result, info)
@@ -181,10 +233,12 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title):
         doc.heading("Accuracy against the simulation truth")
         doc.paragraph(f"Mean 3D error {acc['mean_error_mm']:.1f} mm, median "
                       f"{acc['median_error_mm']:.1f} mm, max {acc['max_error_mm']:.1f} mm.")
+    if info.get("method") != "sequential":
+        _checks_section(doc, check, flagged)
     doc.heading("Diagnostics")
-    doc.preformatted(result.summary())
+    doc.preformatted(summary or result.summary())
     doc.heading("Figures")
-    for key in ("corner", "residuals", "reconstruction", "image"):
+    for key in ("plan", "corner", "predictive", "residuals", "reconstruction", "image"):
         if key in figs:
             doc.figure(*figs[key])
     return doc
@@ -221,11 +275,17 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     """
     out = pathlib.Path(out)
     title = title or f"bayescal calibration report ({info.get('method', 'bayes')})"
-    figs = report_figures(out, result, info, data=data, recon=recon, truth=truth)
+    from .inputchecks import flagged_text, located_summary
+    from .reportchecks import predictive_check
+
+    check = predictive_check(result, info, data.pixels, approx_points=data.approx_points)
+    figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
     acc = accuracy(recon[0] if recon is not None else result.points, truth)
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,
                          acc=acc, truth=truth, warnings=_warnings(result, info, data),
-                         title=title)
+                         title=title, check=check,
+                         flagged=flagged_text(data, getattr(result, "outlier_prob", None)),
+                         summary=located_summary(result, data))
     md, ht = write_document(doc, out, "report")
     files = {k: p for k, (_, p) in figs.items()}
     files.update(markdown=md, html=ht)

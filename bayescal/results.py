@@ -65,6 +65,8 @@ RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
 _SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene",
+                 # floor plan: the walls the report draws
+                 "walls", "wall_covariance", "wall_index", "azimuths",
                  # sequential: what its residual plot needs (bayescal.sequential_residuals)
                  "stage1_residuals_px", "stage1_residuals_std", "stage2_residuals_mm",
                  "stage2_residuals_std", "sigma_px_used")

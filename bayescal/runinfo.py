@@ -4,7 +4,9 @@ A ``bayescal calibrate`` output folder holds the result object (``result.json``
 for the least squares, :meth:`~bayescal.CalibrationResult.save`, or
 ``posterior.npz`` for the Bayesian method, :meth:`~bayescal.Posterior.save`)
 and ``run.json``: the inputs, the noise settings and where they came from, the
-image size, the seed and the command line (format ``"bayescal-run"``,
+image size, the seed, the command line, whether the outlier mixture was on and,
+for a floor-plan run (``--walls``), the plan itself (``"plan"``: wall segments
+and sds, :func:`bayescal.planfile.plan_record`) (format ``"bayescal-run"``,
 versioned). ``bayescal reconstruct`` and ``bayescal report`` load the result
 object through :func:`load_run`.
 """
@@ -30,9 +32,21 @@ def run_record(job, **more):
            "inputs": dict(job.inputs), "sigma_px": job.sigma_px,
            "sigma_px_how": job.sigma_px_how, "sigma_scene": job.sigma_scene_how,
            "image_size": list(job.image_size), "seed": job.seed, "command": job.command,
-           "nominal": job.nominal.as_dict()}
+           "nominal": job.nominal.as_dict(), "outliers": bool(job.outliers)}
+    if job.plan is not None:
+        from .planfile import plan_record
+
+        rec["plan"] = plan_record(job.plan)
+        rec["sigma_scene"] = (f"floor plan of {job.plan.n_walls} walls: distance sd "
+                              f"{_range_text(job.plan.distance_sd)} mm, angle sd "
+                              f"{_range_text(job.plan.angle_sd)} rad")
     rec.update(more)
     return rec
+
+
+def _range_text(values):
+    lo, hi = float(min(values)), float(max(values))
+    return f"{lo:.3g}" if lo == hi else f"{lo:.3g}-{hi:.3g}"
 
 
 def load_run(run):

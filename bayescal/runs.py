@@ -22,8 +22,9 @@ def write_simulation(folder, ds, *, seed):
 
     Files: ``laser.csv`` and ``laser.npz`` (u, v, x, y, z, sigma_x/y/z, sigma_px),
     ``calibration.npz`` (CalibrationData fields), ``grid.csv`` and
-    ``calib_laser.csv`` (the same in CSV), ``truth.json`` (true parameters,
-    points and walls, settings).
+    ``calib_laser.csv`` (the same in CSV), ``walls.csv`` (the rough floor plan of
+    the room, for ``calibrate --walls``), ``truth.json`` (true parameters, points
+    and walls, settings).
     """
     from dataclasses import asdict
 
@@ -51,8 +52,17 @@ def write_simulation(folder, ds, *, seed):
         "params": ds.params.as_dict(), "nominal": ds.nominal.as_dict(), "points": ds.points,
         "pixels_true": ds.pixels_true, "walls": ds.walls, "settings": settings, "seed": seed,
         "n_points": ds.n_points})
-    files = [p / n for n in ("laser.csv", "laser.npz", "calibration.npz", "grid.csv",
-                             "calib_laser.csv", "truth.json")]
+    names = ["laser.csv", "laser.npz", "calibration.npz", "grid.csv", "calib_laser.csv",
+             "truth.json"]
+    if ds.floor_plan is not None:
+        from .planfile import write_walls_csv
+
+        write_walls_csv(p / "walls.csv", ds.floor_plan, header_comment=(
+            f"bayescal simulate: the rough floor plan of the simulated room (seed {seed})\n"
+            "x0, y0, x1, y1: wall end points (mm, frame C, counterclockwise); distance_sd: sd "
+            "of the wall's distance from the axis (mm); angle_sd: sd of its orientation (rad)"))
+        names.insert(1, "walls.csv")
+    files = [p / n for n in names]
     folder.add(*files)
     return files
 
@@ -82,47 +92,95 @@ def points_csv(path, points, cov, outlier_prob=None, *, first=None):
     return path
 
 
-def calibrate_result(job):
-    """Run the job's method; returns ``(result, failure message or None)``."""
+def _accepts(func, name):
+    import inspect
+
+    return name in inspect.signature(func).parameters
+
+
+def _bayes(job):
+    """The posterior of a bayes job; returns ``(posterior, failure message or None)``."""
     import bayescal as bc
 
     from .parameters import SensorParams
+
+    data, kw = job.data, {}
+    if job.max_steps is not None:
+        kw["max_steps"] = job.max_steps
+    if job.nominal != SensorParams.paper():
+        kw["init"] = job.nominal
+    if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
+        kw["outliers"] = False
+    if job.plan is None:
+        post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
+                                   sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
+                                   progress=job.progress, **kw)
+    else:
+        try:
+            post = bc.sample_posterior(data.pixels, job.plan, sigma_px=job.sigma_px,
+                                       prior=job.prior, rng=job.seed, progress=job.progress,
+                                       **kw)
+        except TypeError as exc:
+            raise Failure("--method bayes with --walls needs a sampler that takes a floor "
+                          f"plan; this bayescal's does not ({exc}). Use --method "
+                          "simultaneous") from None
+    if post.converged or job.allow_unconverged:
+        return post, None
+    return post, ("the posterior sampler did not converge (chains shorter than 50 "
+                  "autocorrelation times); outputs written for diagnosis. Run longer "
+                  "(--max-steps) or pass --allow-unconverged")
+
+
+def _least_squares(job):
+    """The sequential or simultaneous result of ``job`` (may raise ConvergenceError)."""
+    import bayescal as bc
+
+    from .parameters import SensorParams
+
+    kw = {}
+    if job.prior is not None or job.nominal != SensorParams.paper():
+        kw["init"] = job.nominal
+    if job.method == "sequential":
+        # only an explicit --sigma-px describes the pattern pixels
+        if job.sigma_px_how == "given":
+            kw["sigma_px"] = job.sigma_px
+        return bc.calibrate_sequential(job.calib, **kw)
+    if job.plan is not None:
+        return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
+                                         prior=job.prior, **kw)
+    return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
+                                     sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
+                                     prior=job.prior, outliers=job.outliers, **kw)
+
+
+def calibrate_result(job):
+    """Run the job's method; returns ``(result, failure message or None)``.
+
+    Library messages about the input (duplicate rows, a collapsing noise level)
+    are shown with the file's line numbers; a collapsing noise level is bad
+    input (:class:`~bayescal.errors.UsageError`, exit code 2).
+    """
+    from .inputchecks import library_messages
     from .results import ConvergenceError
 
-    data, kw, paper = job.data, {}, SensorParams.paper()
-    if job.method == "bayes":
-        if job.max_steps is not None:
-            kw["max_steps"] = job.max_steps
-        if job.nominal != paper:
-            kw["init"] = job.nominal
-        post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
-                                   sigma_scene=job.sigma_scene, prior=job.prior,
-                                   rng=job.seed, progress=job.progress, **kw)
-        if post.converged or job.allow_unconverged:
-            return post, None
-        return post, ("the posterior sampler did not converge (chains shorter than 50 "
-                       "autocorrelation times); outputs written for diagnosis. Run longer "
-                       "(--max-steps) or pass --allow-unconverged")
-    if job.prior is not None or job.nominal != paper:
-        kw["init"] = job.nominal
-    try:
-        if job.method == "sequential":
-            # only an explicit --sigma-px describes the pattern pixels
-            if job.sigma_px_how == "given":
-                kw["sigma_px"] = job.sigma_px
-            result = bc.calibrate_sequential(job.calib, **kw)
-        else:
-            result = bc.calibrate_simultaneous(data.pixels, data.approx_points,
-                                               sigma_px=job.sigma_px,
-                                               sigma_scene=job.sigma_scene, prior=job.prior,
-                                               **kw)
-    except ConvergenceError as exc:
-        if exc.result is None:
-            raise Failure(f"{job.method} calibration did not converge: {exc}") from None
-        return exc.result, f"{job.method} calibration did not converge: {exc}"
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing was "
-                      "written") from None
+    data = job.data
+    with library_messages(data, reported=job.duplicate_lines) if data is not None \
+            else _nothing():
+        if job.method == "bayes":
+            return _bayes(job)
+        try:
+            result = _least_squares(job)
+        except ConvergenceError as exc:
+            if exc.result is None:
+                raise Failure(f"{job.method} calibration did not converge: {exc}") from None
+            return exc.result, f"{job.method} calibration did not converge: {exc}"
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            from .checks import NoiseCollapseError
+
+            if isinstance(exc, NoiseCollapseError):
+                raise
+            raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing "
+                          "was written") from None
     if job.sigma_px is not None:
         result.extras["sigma_px"] = float(job.sigma_px)
     if job.sigma_scene is not None and job.method == "simultaneous":
@@ -130,6 +188,12 @@ def calibrate_result(job):
     if not result.converged:
         return result, f"{job.method} calibration did not converge: {result.message}"
     return result, None
+
+
+def _nothing():
+    import contextlib
+
+    return contextlib.nullcontext()
 
 
 def _recon(job, result):
@@ -176,7 +240,9 @@ def run_calibrate(job, folder):
                                   truth=job.truth, prior=_prior_of(job), title=job.title)
         folder.add(*files.values())
     folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc)))
-    print(result.summary())
+    from .inputchecks import located_summary
+
+    print(located_summary(result, job.data))
     if acc:
         print(f"mean 3D error against the truth: {acc['mean_error_mm']:.1f} mm")
     print(f"wrote {job.out}/" + (POSTERIOR_FILE if job.method == "bayes" else RESULT_FILE)

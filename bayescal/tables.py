@@ -118,7 +118,7 @@ def _read_csv(path, required, optional):
     ignored = [n for n in names if n not in required and n not in optional]
     if ignored:
         print(f"bayescal: warning: {path}: ignoring column(s) {', '.join(ignored)} "
-              f"(known columns: {', '.join(_KNOWN)})", file=sys.stderr)
+              f"(known columns: {', '.join(tuple(required) + tuple(optional))})", file=sys.stderr)
     data = rows[1:]
     if not data:
         raise InputError(f"{path}: the header is there but no data lines follow",

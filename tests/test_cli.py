@@ -7,6 +7,7 @@ file, line and column, and that nothing was written.
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 
@@ -96,7 +97,13 @@ def test_simulate_writes_inputs_that_match_the_library(sim):
     manifest = json.loads((sim / MANIFEST).read_text())
     assert sorted(manifest["files"]) == sorted(
         ["laser.csv", "laser.npz", "calibration.npz", "grid.csv", "calib_laser.csv",
-         "truth.json"])
+         "truth.json", "walls.csv"])
+    from bayescal.planfile import load_walls
+
+    plan, _ = load_walls(sim / "walls.csv")        # the simulation's rough plan, sds included
+    np.testing.assert_allclose(plan.segments, ds.floor_plan.segments, rtol=1e-15)
+    np.testing.assert_allclose(plan.distance_sd, ds.floor_plan.distance_sd, rtol=1e-15)
+    np.testing.assert_allclose(plan.angle_sd, ds.floor_plan.angle_sd, rtol=1e-15)
 
 
 def test_simulate_bad_option_writes_nothing(tmp_path):
@@ -366,6 +373,34 @@ def test_bayes_reconstruct_and_report(bayes_run, sim, tmp_path):
     assert (tmp_path / "rep" / "corner.png").is_file()
 
 
+def test_bayes_report_has_the_predictive_check_and_outlier_column(bayes_run):
+    folder, _ = bayes_run
+    md = (folder / "report.md").read_text()
+    assert "Posterior predictive check: " in md and (folder / "predictive.png").is_file()
+    post = bc.load_posterior(folder / "posterior.npz")
+    header = (folder / "points.csv").read_text().splitlines()[0].split(",")
+    # the column is there exactly when the posterior carries outlier probabilities
+    assert ("outlier_prob" in header) == (getattr(post, "outlier_prob", None) is not None)
+
+
+def test_posterior_residuals_is_the_predictive_check_residuals(bayes_run):
+    from bayescal.checks import posterior_predictive_residuals
+    from bayescal.residuals import draw_indices, posterior_residuals
+
+    post = bc.load_posterior(bayes_run[0] / "posterior.npz")
+    pix, scene = posterior_residuals(post, n_draws=7, scene=True)
+    idx = draw_indices(post.n_samples, 7)
+    ref_pix, ref_scene = posterior_predictive_residuals(
+        post.param_samples[idx], post.point_samples[idx], post.pixels, post.approx_points,
+        sigma_px=post._sigma_px_samples()[idx], sigma_scene=post.sigma_scene)
+    np.testing.assert_allclose(pix, -ref_pix, rtol=1e-12)
+    np.testing.assert_allclose(scene, -ref_scene, rtol=1e-12)
+    # data minus model: the first draw's first pixel by hand
+    p0 = bc.SensorParams.from_array(post.param_samples[idx[0]])
+    hand = (post.pixels[0] - bc.project(p0, post.point_samples[idx[0], 0]))
+    np.testing.assert_allclose(pix[0, 0] * post._sigma_px_samples()[idx[0]], hand, rtol=1e-9)
+
+
 # -- study and demo --------------------------------------------------------------------
 
 def test_study_unknown_name_lists_available(tmp_path):
@@ -424,8 +459,12 @@ def test_demo_small(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     out = tmp_path / "out"
     for f in ("index.html", "index.md", "data/laser.csv", "sequential/report.html",
-              "simultaneous/report.html", "bayes/report.html", "bayes/posterior.npz"):
+              "simultaneous/report.html", "bayes/report.html", "bayes/posterior.npz",
+              "data/walls.csv", "floorplan/report.html", "floorplan/plan.png"):
         assert (out / f).is_file(), f
+    index = (out / "index.md").read_text()
+    for link in re.findall(r"\]\(([^)]+)\)", index):        # every link and figure resolves
+        assert (out / link).is_file(), link
     r = run("demo", "--out", "out", "--n-points", 30, cwd=tmp_path)
     assert r.returncode == 2 and "--force" in r.stderr
 
@@ -437,6 +476,7 @@ def test_demo_full_as_make_demo(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     index = (tmp_path / "out" / "index.md").read_text()
     assert "| simultaneous | ok |" in index and "| bayes | ok |" in index
+    assert "| floorplan | ok |" in index
 
 
 # -- report helpers (in process) -----------------------------------------------------------

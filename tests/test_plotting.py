@@ -102,3 +102,28 @@ def test_validation_figures(tmp_path):
     counts = np.full((8, 10), 10)
     plot_sbc(counts, np.zeros(8), 100, tmp_path / "sbc.png")
     assert (tmp_path / "sbc.png").stat().st_size > 1000
+
+
+def test_plot_floor_plan_draws_every_layer(rng):
+    from bayescal.plotting import plot_floor_plan, wall_draws
+
+    ds = bc.simulate_room(range_mm=1000, n_points=40, sigma_px=0.5, approx_error=0.05, rng=rng)
+    plan = ds.floor_plan
+    walls = np.column_stack([plan.distances, plan.angles])
+    cov = np.diag(np.column_stack([plan.distance_sd, plan.angle_sd]).ravel() ** 2)
+    draws = wall_draws(walls, covariance=cov, n_draws=4000, rng=1)
+    # draws from the Laplace approximation have its covariance (4000 draws: relative sd
+    # error of the variance ~2.2 %, 5 sd margin)
+    np.testing.assert_allclose(draws.reshape(4000, -1).var(axis=0), np.diag(cov), rtol=0.12)
+    post = wall_draws(walls, samples=draws, n_draws=10)
+    assert post.shape == (10,) + walls.shape
+    cov3 = np.broadcast_to(np.eye(3) * 100.0, (40, 3, 3))
+    fig = plot_floor_plan(plan, walls=walls, wall_covariance=cov, points=ds.points,
+                          point_covariance=cov3, truth_walls=ds.walls, truth_points=ds.points,
+                          max_ellipses=10)
+    ax = fig.axes[0]
+    labels = {t.get_text() for t in ax.get_legend().get_texts()}
+    assert {"plan as given", "wall draws", "estimated walls", "true walls", "points",
+            "true points"} <= labels
+    assert len(ax.patches) == 10                         # one ellipse in every 4 points
+    plt.close(fig)

@@ -13,7 +13,8 @@ from .diagnostics import (
     plot_reconstruction_ellipses,
     radial_tangential_sd,
 )
+from .plan import plot_floor_plan, wall_draws
 
 __all__ = ["plot_image", "plot_room", "plot_corner", "plot_residuals", "plot_reconstruction",
            "plot_pixel_residuals", "plot_reconstruction_ellipses", "radial_tangential_sd",
-           "savefig", "UNITS"]
+           "savefig", "UNITS", "plot_floor_plan", "wall_draws"]
