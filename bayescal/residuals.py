@@ -82,8 +82,8 @@ def posterior_residuals(posterior, *, n_draws=100, rng=None, scene=False):
     idx = draw_indices(posterior.n_samples, n_draws)
     approx = getattr(posterior, "approx_points", None)
     points = posterior.point_samples[idx]
-    if approx is None or np.shape(approx) != points.shape[1:]:
-        approx = points.mean(axis=0)              # no scene rows: any finite stand-in
+    if approx is None or np.shape(approx) != points.shape[1:] or not np.all(np.isfinite(approx)):
+        approx = points.mean(axis=0)              # no scene rows (floor plan): a finite stand-in
     pix, sc = posterior_predictive_residuals(
         posterior.param_samples[idx], points, posterior.pixels, approx,
         sigma_px=posterior._sigma_px_samples()[idx], sigma_scene=_scene_sd(posterior, idx))

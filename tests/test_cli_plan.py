@@ -131,11 +131,6 @@ def test_distance_sd_option_applies_without_sd_columns(sim, tmp_path):
 def test_bayes_with_walls(sim, tmp_path, capsys, monkeypatch):
     ds = bc.simulate_room(range_mm=5000, n_points=N_POINTS, sigma_px=0.1, approx_error=0.05,
                           rng=4)
-    try:
-        bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.1, rng=0, progress=False,
-                            max_steps=50, on_unconverged="warn")
-    except (TypeError, ValueError) as exc:
-        pytest.skip(f"bc.sample_posterior does not take a FloorPlan in this tree yet ({exc})")
     monkeypatch.chdir(tmp_path)
     rc, cap = _main(["calibrate", sim / "laser.csv", "--walls", sim / "walls.csv", "--method",
                      "bayes", "--max-steps", "400", "--allow-unconverged", "--no-progress",
