@@ -20,16 +20,16 @@ from .errors import Failure
 from .jobs import CalibrateJob
 from .runs import run_calibrate, write_simulation
 
-__all__ = ["run_demo", "run_study", "off_design_sensor", "DEMO_ROOM", "OFF_DESIGN_SCALE"]
+__all__ = ["run_demo", "run_study", "off_design_sensor", "DEMO_ROOM", "OFF_NOMINAL_SCALE"]
 
 #: the paper's large room (Fig. 9 protocol, 5 % approximate points)
 DEMO_ROOM = {"range_mm": 5000.0, "n_walls": 7, "sigma_px": 0.1, "approx_error": 0.05,
              "approx_model": "fig9"}
 #: the demo's true sensor is the design drawn off by this many default-prior sds
-OFF_DESIGN_SCALE = 0.5
+OFF_NOMINAL_SCALE = 0.5
 
 
-def off_design_sensor(rng, *, scale=OFF_DESIGN_SCALE):
+def off_design_sensor(rng, *, scale=OFF_NOMINAL_SCALE):
     """The paper's (design) sensor perturbed by ``scale`` x the default prior sd, per parameter.
 
     A truth equal to the design values the priors are centred on would flatter
@@ -88,7 +88,7 @@ def _index(out, rows, ds):
     doc.paragraph(f"Simulated {ds.n_points} laser points in a {ds.range_mm:.0f} mm room, pixel "
                   f"noise {ds.sigma_px:g} px, approximate points {100 * ds.approx_error:g} "
                   f"percent ({ds.approx_model} protocol); the true sensor is drawn "
-                  f"{OFF_DESIGN_SCALE:g} prior sd off the design values the priors are centred "
+                  f"{OFF_NOMINAL_SCALE:g} prior sd off the design values the priors are centred "
                   "on. Inputs in `data/`.")
     links = {r["report"]: r["report"] for r in rows if r["report"]}
     doc.table(["stage", "status", "mean 3D error (mm)", "report"],
