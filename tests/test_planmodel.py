@@ -51,7 +51,8 @@ def test_residual_jacobians(rng, numdiff):
                                    rtol=1e-5, atol=1e-6)
     # the sampler's elementwise hot path agrees with the general residuals
     d, a = walls[k, 0], walls[k, 1]
-    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], a[None])
+    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], np.cos(a)[None],
+                                    np.sin(a)[None])
     np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * 0.5 + ds.pixels, rtol=1e-12)
     np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * 0.5, rtol=1e-10)
 
