@@ -84,7 +84,10 @@ def _normal_equations(lik, prior, g, t, sig):
 def _cost(lik, prior, g, t, sig):
     W = lik.n_walls
     walls = g[8:].reshape(W, 2)
-    if np.any(walls[:, 0] <= 0):
+    # outside the physical domain (walls behind the axis, h <= 0, beta outside (0, pi/2), xi < 0,
+    # xi + phi <= 0): not a step to take
+    if (np.any(walls[:, 0] <= 0) or g[5] <= 0 or not 0 < g[6] < np.pi / 2
+            or g[0] < 0 or g[0] + g[7] <= 0):
         return np.inf
     R = lik.residuals(g[:7], walls, t, lik.hard_wall_index(walls, t), sig)
     rp = prior.residuals(from_identifiable(g[:7], g[7]))
@@ -205,7 +208,15 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
     lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init)
     if lik.n < 4:
         raise ValueError(f"need at least 4 laser points, got N={lik.n}")
-    best = _fit_from(lik, prior, init, max_iter)
+    best = None
+    for staged in (True, False):            # both from init: neither is always the better
+        try:
+            sol = _fit_from(lik, prior, init, max_iter, staged=staged)
+        except ValueError:
+            if not staged:
+                raise
+            continue
+        best = sol if best is None or sol.objective < best.objective else best
     draws = np.random.default_rng(0).standard_normal((N_RESTARTS, 8))
     for z in draws:
         if best.check["ok"]:
@@ -220,14 +231,16 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
     return lik, prior, best
 
 
-def _fit_from(lik, prior, init, max_iter):
-    """One start: staged solve, noise estimate, re-picked corners; returns the solution.
+def _fit_from(lik, prior, init, max_iter, *, staged=True):
+    """One start: (staged) solve, noise estimate, re-picked corners; returns the solution.
 
-    Stage 1 holds the wall orientations at the plan and fits the sensor and the
+    If ``staged``, stage 1 holds the wall orientations at the plan and fits the sensor and the
     walls' distances; stage 2 frees everything. From the design sensor a rough
     plan (orientations off by ~3 degrees per wall) can otherwise lead the joint
     solve into a wrong wall configuration: in the Fig. 9 case of
-    ``docs/floorplan.md`` section 3, walls 14 prior sd off and 1.6 m errors.
+    ``docs/floorplan.md`` section 3, walls 14 prior sd off and 1.6 m errors. But
+    held orientations can also mislead stage 1 (h driven to 0 in one 5000 mm
+    replication), so :func:`_fit` runs both and keeps the better.
     """
     plan = lik.plan
     lik.assign(init)
@@ -237,8 +250,9 @@ def _fit_from(lik, prior, init, max_iter):
     t = lik._start(theta0[None])[0]
     sig = 1.0 if lik.infer_px else lik.sigma_px
     stage1 = np.r_[np.ones(8, bool), np.tile([True, False], lik.n_walls)]
-    sol = _solve(lik, prior, g, t, sig, max_iter=max_iter, free=stage1)
-    g, t = sol.g, sol.t
+    if staged:
+        sol = _solve(lik, prior, g, t, sig, max_iter=max_iter, free=stage1)
+        g, t = sol.g, sol.t
     for _ in range(4 if lik.infer_px else 1):
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
         g, t = sol.g, sol.t
