@@ -17,6 +17,7 @@ sampler explores, and the inverse Schur complement is its Laplace covariance.
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from .floorplan import FloorPlan, plan_point
 from .parameters import (
@@ -83,7 +84,10 @@ def _normal_equations(lik, prior, g, t, sig):
 def _cost(lik, prior, g, t, sig):
     W = lik.n_walls
     walls = g[8:].reshape(W, 2)
-    if np.any(walls[:, 0] <= 0):
+    # outside the physical domain (walls behind the axis, h <= 0, beta outside (0, pi/2), xi < 0,
+    # xi + phi <= 0): not a step to take
+    if (np.any(walls[:, 0] <= 0) or g[5] <= 0 or not 0 < g[6] < np.pi / 2
+            or g[0] < 0 or g[0] + g[7] <= 0):
         return np.inf
     R = lik.residuals(g[:7], walls, t, lik.hard_wall_index(walls, t), sig)
     rp = prior.residuals(from_identifiable(g[:7], g[7]))
@@ -101,16 +105,23 @@ def _schur(ne, lam=0.0):
     return S, Cd
 
 
-def _step(ne, lam):
+def _step(ne, lam, free=None):
     S, Cd = _schur(ne, lam)
     rhs = -(ne["gg"] - np.einsum("ni,n->i", ne["B"], ne["gt"] / Cd))
-    dg = np.linalg.solve(S, rhs)
+    if free is None:
+        dg = np.linalg.solve(S, rhs)
+    else:                               # held parameters: their rows and columns dropped
+        dg = np.zeros_like(rhs)
+        dg[free] = np.linalg.solve(S[np.ix_(free, free)], rhs[free])
     dt = -(ne["gt"] + ne["B"] @ dg) / Cd
     return dg, dt
 
 
-def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10):
-    """Levenberg-Marquardt on (g, t) at fixed pixel noise; returns a PlanMapSolution."""
+def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=None):
+    """Levenberg-Marquardt on (g, t) at fixed pixel noise; returns a PlanMapSolution.
+
+    ``free`` (bool, shape (8 + 2W,)) holds the other entries of ``g`` at their start.
+    """
     lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
     cost, ne = _normal_equations(lik, prior, g, t, sig)
     if not np.isfinite(cost):
@@ -121,7 +132,7 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10):
         improved = False
         for _ in range(30):
             try:
-                dg, dt = _step(ne, lam)
+                dg, dt = _step(ne, lam, free)
             except np.linalg.LinAlgError:
                 lam *= 10
                 continue
@@ -171,8 +182,22 @@ def _point_covariances(lik, sol):
             + np.einsum("nai,ij,nbj->nab", Gg, cov, Gg))
 
 
+#: p-value below which the MAP's wall-prior chi-square (or, with the pixel noise given, its
+#: pixel chi-square) marks a wrong minimum: restart, and fail if no start passes
+CHECK_P = 1e-6
+#: restarts from sensor draws of the prior when the first solution fails its checks
+N_RESTARTS = 4
+
+
 def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
-    """MAP with the pixel noise given or estimated; returns (lik, prior, sol)."""
+    """MAP with the pixel noise given or estimated; returns (lik, prior, sol).
+
+    A staged solve from ``init`` (see :func:`_fit_from`); if its solution fails the
+    checks of :func:`_check` (walls far off their plan, or pixels far off the model),
+    up to ``N_RESTARTS`` restarts from sensor draws of the prior (a fixed seed: the
+    result is deterministic). The lowest collapsed cost wins; ``sol.check`` says
+    whether it passed (:func:`_make_result` flags it unconverged otherwise).
+    """
     if not isinstance(plan, FloorPlan):
         raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
     prior = prior if isinstance(prior, Prior) else Prior(prior)
@@ -183,11 +208,51 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
     lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init)
     if lik.n < 4:
         raise ValueError(f"need at least 4 laser points, got N={lik.n}")
+    best = None
+    for staged in (True, False):            # both from init: neither is always the better
+        try:
+            sol = _fit_from(lik, prior, init, max_iter, staged=staged)
+        except ValueError:
+            if not staged:
+                raise
+            continue
+        best = sol if best is None or sol.objective < best.objective else best
+    draws = np.random.default_rng(0).standard_normal((N_RESTARTS, 8))
+    for z in draws:
+        if best.check["ok"]:
+            break
+        start = SensorParams.from_array(init.to_array() + prior.std() * z)
+        try:
+            sol = _fit_from(lik, prior, start, max_iter)
+        except ValueError:                  # a start outside the model's domain
+            continue
+        best = sol if sol.objective < best.objective else best
+    lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+    return lik, prior, best
+
+
+def _fit_from(lik, prior, init, max_iter, *, staged=True):
+    """One start: (staged) solve, noise estimate, re-picked corners; returns the solution.
+
+    If ``staged``, stage 1 holds the wall orientations at the plan and fits the sensor and the
+    walls' distances; stage 2 frees everything. From the design sensor a rough
+    plan (orientations off by ~3 degrees per wall) can otherwise lead the joint
+    solve into a wrong wall configuration: in the Fig. 9 case of
+    ``docs/floorplan.md`` section 3, walls 14 prior sd off and 1.6 m errors. But
+    held orientations can also mislead stage 1 (h driven to 0 in one 5000 mm
+    replication), so :func:`_fit` runs both and keeps the better.
+    """
+    plan = lik.plan
+    lik.assign(init)
+    lik.ref_sigma_px = 1.0 if lik.infer_px else lik.sigma_px
     theta0 = to_identifiable(init.to_array())
     g = np.concatenate([theta0, [init.phi], plan.param_nominal])
     t = lik._start(theta0[None])[0]
     sig = 1.0 if lik.infer_px else lik.sigma_px
-    sol = None
+    stage1 = np.r_[np.ones(8, bool), np.tile([True, False], lik.n_walls)]
+    if staged:
+        sol = _solve(lik, prior, g, t, sig, max_iter=max_iter, free=stage1)
+        g, t = sol.g, sol.t
     for _ in range(4 if lik.infer_px else 1):
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
         g, t = sol.g, sol.t
@@ -195,9 +260,21 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
             # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
             # freedom per point: two pixel rows, one azimuth); maximum at mean S_i
             sig = float(sig * np.sqrt(np.sum(sol.ne["R"] ** 2) / lik.n))
+    sol = _repick(lik, prior, sol, g, t, sig, max_iter)
+    sol.check = _check(lik, sol)
+    # comparable across starts with inferred noise: the collapsed negative log posterior
+    sol.objective = sol.cost + (lik.n * np.log(sol.sigma_px) if lik.infer_px else 0.0)
+    sol.assignment = (lik.corner.copy(), lik.wall_pair.copy(), lik.ref_sigma_px)
+    return sol
+
+
+def _repick(lik, prior, sol, g, t, sig, max_iter):
+    """Re-pick each point's candidate walls around the MAP's corners and re-solve.
+
+    The plan's corners may be far off at shallow corners; re-solve if any point
+    changed its pair (at most three rounds).
+    """
     for _ in range(3):
-        # re-pick each point's candidate walls around the MAP's corners (the plan's may be
-        # far off at shallow corners) and re-solve if any point changed its pair
         before, corner = lik.wall_pair.copy(), lik.corner.copy()
         lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
                    g[8:].reshape(-1, 2))
@@ -214,7 +291,29 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
         g, t = sol.g, sol.t
         if np.array_equal(before, lik.wall_pair):
             break
-    return lik, prior, sol
+    return sol
+
+
+def _check(lik, sol):
+    """Plausibility of a MAP: walls against their plan, pixels against their noise.
+
+    At the MAP the wall prior residuals ``z = (w - plan) / sd`` have variance
+    ``1 - posterior var / prior var <= 1`` each, so ``sum z^2`` is at most a
+    chi-square with 2W degrees of freedom; with the pixel noise given, the pixel
+    chi-square has N (two rows, one azimuth per point). A p-value below
+    ``CHECK_P`` marks a wrong minimum (or a plan or noise inconsistent with the
+    data); only the wall check fails the calibration, the pixel one restarts it.
+    """
+    z = (sol.g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    wall_chi2 = float(z @ z)
+    p_wall = float(stats.chi2.sf(wall_chi2, z.size))
+    p_px = 1.0
+    if not lik.infer_px:
+        p_px = float(stats.chi2.sf(np.sum(sol.ne["R"] ** 2), lik.n))
+    k = int(np.argmax(np.abs(z)))
+    return {"ok": p_wall > CHECK_P and p_px > CHECK_P, "walls_ok": p_wall > CHECK_P,
+            "wall_chi2": wall_chi2, "p_wall": p_wall, "p_pixels": p_px,
+            "worst": (lik.plan.param_names[k], float(z[k]))}
 
 
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
@@ -274,8 +373,18 @@ def _make_result(lik, sol, absolute_sigma, raise_on_failure):
                 "map": sol, "noise": {"sigma_px": sig, "kappa": None}, "theta": theta,
                 "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
                 "floor_plan": lik.plan})
+    chk = sol.check
+    result.extras["check"] = chk
+    if result.converged and not chk["walls_ok"]:
+        result.converged = False
+        result.message = (
+            f"the walls of the best least-squares solution (of {N_RESTARTS + 1} starts) are "
+            f"far off the plan: wall chi-square {chk['wall_chi2']:.1f} on {2 * W} degrees of "
+            f"freedom (p = {chk['p_wall']:.2g}), worst {chk['worst'][0]} at "
+            f"{chk['worst'][1]:+.1f} prior sd; a local minimum, or a plan (or its sds) "
+            f"inconsistent with the pixels")
     if not result.converged and raise_on_failure:
-        raise ConvergenceError(f"floor-plan calibration did not converge: {sol.message}",
+        raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
 

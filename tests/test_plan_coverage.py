@@ -1,4 +1,4 @@
-"""Slow: coverage of the floor-plan intervals on wall-level errors (``docs/floorplan.md`` s. 8).
+"""Slow: coverage of the floor-plan intervals on wall-level errors (``docs/floorplan.md`` s. 9).
 
 Each replication simulates a room whose approximate geometry is a rough floor plan
 (``simulate_room(approx_model="wall")``: every wall's distance off by one draw of 5 % of
@@ -112,14 +112,7 @@ def coverage_table(range_mm, sigma_px, m, *, mcmc=False, seed0=1000):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("room", [
-    "small",
-    # measured at M = 200: the Laplace intervals of the walls, u0, v0 and the points cover
-    # 76-83 % at 90 % in the 5000 mm room (docs/floorplan.md section 8); strict, so a fix
-    # shows up as an unexpected pass
-    pytest.param("large", marks=pytest.mark.xfail(strict=True, reason="large-room Laplace "
-                                                  "under-coverage, docs/floorplan.md s. 8")),
-])
+@pytest.mark.parametrize("room", ["small", "large"])
 def test_floor_plan_intervals_cover(room):
     """90 % / 95 % intervals of theta, walls and points within the 99 % band of M.
 

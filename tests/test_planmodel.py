@@ -51,7 +51,8 @@ def test_residual_jacobians(rng, numdiff):
                                    rtol=1e-5, atol=1e-6)
     # the sampler's elementwise hot path agrees with the general residuals
     d, a = walls[k, 0], walls[k, 1]
-    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], a[None])
+    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], np.cos(a)[None],
+                                    np.sin(a)[None])
     np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * 0.5 + ds.pixels, rtol=1e-12)
     np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * 0.5, rtol=1e-10)
 
@@ -226,3 +227,60 @@ def test_laplace_covariance_matches_refit_spread(range_mm):
     sd_laplace = np.sqrt(np.mean([np.diag(f[1]) for f in fits], axis=0))
     ratio = est.std(axis=0, ddof=1) / sd_laplace
     assert np.all(np.abs(ratio - 1) < 0.25), ratio
+
+
+def _fig9_rough_plan_case():
+    """Fig. 9 at 5 %, seed 0, its first trial (docs/studies.md, the floor-plan column):
+    5000 mm room, 580 points, 0.1 px, the plan's distances off by 5 %, its orientations
+    by 0.05 rad (~3 degrees) per wall. The sensor and stream are the study's."""
+    params = bc.SensorParams.from_array([1.0426115225361954, -0.05294529194185609,
+                                         56.038473138772865, -59.71710623330879,
+                                         401.4082047243168, 286.6181520762432,
+                                         195.10465173488, 1.0594644879342248])
+    stream = np.random.SeedSequence(2494082446102246279, spawn_key=(1,))
+    return bc.simulate_room(params, range_mm=5000.0, n_points=580, sigma_px=0.1,
+                            approx_error=0.05, approx_model="fig9", plan_angle_sd=0.05,
+                            rng=np.random.default_rng(stream))
+
+
+def test_rough_plan_least_squares_avoids_the_wrong_wall_configuration():
+    from bayescal.parameters import to_identifiable
+    from bayescal.plan_lsq import _solve
+
+    ds = _fig9_rough_plan_case()
+    plan, prior = ds.floor_plan, bc.Prior()
+    # the joint solve from the design sensor alone (the former path) stops in a wrong
+    # configuration: the test does exercise the problem
+    lik = PlanLikelihood(ds.pixels, plan, sigma_px=0.1)
+    th0 = to_identifiable(prior.mean().to_array())
+    g0 = np.concatenate([th0, [prior.mean().phi], plan.param_nominal])
+    bad = _solve(lik, prior, g0, lik._start(th0[None])[0], 0.1)
+    assert np.max(np.abs((bad.g[8:] - plan.param_nominal) / plan.param_sd)) > 10
+    res = bc.calibrate_simultaneous(ds.pixels, plan, sigma_px=0.1)
+    ref = bc.calibrate_simultaneous(ds.pixels, plan, sigma_px=0.1, init=ds.params)
+    assert res.converged and res.extras["check"]["walls_ok"]
+    # the minimum reached from the true sensor, to well within one Laplace sd (the wrong
+    # one was 3.3 sd off in h and 14 prior sd off in a wall's orientation)
+    sd = np.sqrt(np.diag(ref.covariance_identifiable))
+    assert np.all(np.abs(res.extras["theta"] - ref.extras["theta"]) < 0.5 * sd)
+    sd_w = np.sqrt(np.diag(ref.extras["wall_covariance"]))
+    assert np.all(np.abs(res.extras["walls"] - ref.extras["walls"]).ravel() < 0.5 * sd_w)
+
+
+def test_plan_inconsistent_with_the_pixels_raises():
+    """One wall drawn 40 % further than it is, with a 20 mm sd (the pixels put it ~7 sd
+    back): no start passes the wall check, so the calibration fails loudly instead of
+    returning the compromise."""
+    ds = bc.simulate_room(range_mm=1000.0, n_points=150, sigma_px=0.5, approx_error=0.0,
+                          approx_model="wall", rng=5)
+    true_plan = FloorPlan(ds.walls, distance_sd=20.0, angle_sd=0.01)
+    d = true_plan.distances.copy()
+    d[2] *= 1.4
+    wrong = FloorPlan.from_lines(d, true_plan.angles, distance_sd=20.0, angle_sd=0.01)
+    with pytest.raises(bc.ConvergenceError, match="far off the plan: wall chi-square"):
+        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5)
+    res = bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, raise_on_failure=False)
+    assert not res.converged and res.extras["check"]["p_wall"] < 1e-6
+    assert res.extras["check"]["worst"][0] == "d_2"
+    # the true plan passes on the same pixels
+    assert bc.calibrate_simultaneous(ds.pixels, true_plan, sigma_px=0.5).converged
