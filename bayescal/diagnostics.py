@@ -38,13 +38,16 @@ def integrated_time(x):
     Returns
     -------
     ndarray, shape (d,)
-        ``inf`` where a coordinate did not move.
+        At least 1; ``inf`` where a coordinate did not move.
     """
     import emcee
 
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = emcee.autocorr.integrated_time(x, tol=0, quiet=True)
-    return np.where(np.isfinite(tau) & (tau > 0), tau, np.inf)
+    # a coordinate that did not move gives NaN: undefined, inf. An antithetic chain
+    # (HMC) can give tau < 1, even < 0: counted as independent draws (tau = 1), which
+    # under-states its ESS, never over-states it
+    return np.where(np.isfinite(tau), np.maximum(tau, 1.0), np.inf)
 
 
 def ensemble_ess(chain):
