@@ -28,6 +28,7 @@ import numpy as np
 from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
+from .model_grad import grad_terms
 
 __all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "draw_points"]
 
@@ -378,17 +379,12 @@ class LaserLikelihood:
     def grad_log_marginal(self, psi, q0, *, n_iter=4):
         """:meth:`laplace`'s log marginal and its gradient in ``psi`` (envelope theorem).
 
-        With the Jeffreys point prior and given noise, ``C = C_ref`` and the
-        log marginal is the profile likelihood ``-|R(theta, q*)|^2 / 2`` plus a
-        constant, so its gradient is ``-sum_i J_theta_i^T R_i`` at the
-        conditional modes ``q*`` (``dq*/dtheta`` drops out). Inferred noise
-        levels add their analytic derivatives (pixel rows ``|R_px|^2 - 2 +
-        tr(C^-1 C_px)`` per point for ``log sigma_px``, scene rows likewise for
-        ``log kappa``). Where ``C != C_ref`` (inferred noise away from the
-        reference levels, flat point prior) the theta-dependence of the
-        log-determinants is left out: the gradient is then approximate, which a
-        gradient-based Metropolis move tolerates (its acceptance test uses the
-        exact value).
+        With the Jeffreys point prior and given noise ``C = C_ref``: the log
+        marginal is the profile likelihood ``-|R(theta, q*)|^2 / 2 + const``, its
+        gradient ``-sum_i J_theta_i^T R_i`` at the modes ``q*``. Inferred noise
+        adds its analytic derivatives; where ``C != C_ref`` (noise away from the
+        reference levels, flat point prior) the log-determinants' theta-dependence
+        is left out: approximate, fine for HMC whose acceptance test uses the value.
 
         Parameters
         ----------
@@ -415,47 +411,9 @@ class LaserLikelihood:
             det = C00 * C11 - C01 * C01
             x = x - (C11 * g0 - C01 * g1) / det            # one more step: the modes
             y = y - (C00 * g1 - C01 * g0) / det
-            grad = self._grad_terms(theta, extra, x, y, sig, w)
+            grad = grad_terms(self, theta, x, y, sig, w)
         grad = np.where(np.isfinite(value)[..., None], grad, np.nan)
         return value, grad
-
-    def _grad_terms(self, theta, extra, x, y, sig, w):
-        """Gradient of ``sum_i log marginal_i`` at the modes ``(x, y)``, shape (..., d)."""
-        xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
-        sb = np.sin(beta)
-        T = sb / np.cos(beta)
-        rho = np.sqrt(x * x + y * y)
-        z = rho / T - h
-        r = np.sqrt(rho * rho + z * z)
-        D = xi * r - z
-        mx, my = x / D, y / D
-        inv_s = 1.0 / sig[..., None]
-        ru = (gu * mx + u0 - self.pixels[:, 0]) * inv_s
-        rv = (gv * my + v0 - self.pixels[:, 1]) * inv_s
-        wz = w[..., 2]
-        rzw = (z - self.approx[:, 2]) * wz * wz                # r_z * d r_z / d z
-        A = (ru * gu * mx + rv * gv * my) * inv_s / D          # -(d r_px / d D) . r_px
-        dz_db = -rho / (sb * sb)
-        zr = xi * z / r
-        out = [np.sum(A * r, -1), -np.sum(ru * mx * inv_s, -1), -np.sum(rv * my * inv_s, -1),
-               -np.sum(ru * inv_s, -1), -np.sum(rv * inv_s, -1),
-               np.sum(A * (1.0 - zr) + rzw, -1),
-               np.sum(A * (zr - 1.0) * dz_db - rzw * dz_db, -1)]
-        if self.n_noise:
-            _, Cp, Cs, _, _ = self._point_terms(theta, x, y, sig, w)
-            C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
-            det = C00 * C11 - C01 * C01
-
-            def tr_cinv(B):                                     # tr(C^-1 B) per point
-                return (C11 * B[0] - 2 * C01 * B[1] + C00 * B[2]) / det
-            if self.infer_px:
-                out.append(np.sum(ru * ru + rv * rv - 2.0 + tr_cinv(Cp), -1))
-            if self.infer_scene:
-                rr_s = ((x - self.approx[:, 0]) * w[..., 0]) ** 2 \
-                    + ((y - self.approx[:, 1]) * w[..., 1]) ** 2 \
-                    + ((z - self.approx[:, 2]) * wz) ** 2
-                out.append(np.sum(rr_s - 3.0 + tr_cinv(Cs), -1))
-        return np.stack(out, -1)
 
     def _exact_terms(self, psi, q):
         theta, extra = self.split(psi)

@@ -3,13 +3,13 @@
 :func:`bayescal.sampling.sample_collapsed` calls them in order:
 
 1. :func:`to_sampling` / :func:`from_sampling`: sampling coordinates (ring radii in
-   place of gamma, ``docs/bayes.md`` section 3);
+   place of gamma, ``H = h * depth_scale`` in place of h, ``docs/bayes.md`` section 3);
 2. :class:`CollapsedTarget`: the log posterior with the points integrated out;
-3. :func:`fit_proposal`: adaptive importance sampling fits a Student-t to the
-   target (mean and covariance from weighted draws, several rounds), which both
-   tunes the independence proposal and gives near-stationary walker starts;
-4. :func:`place_walkers`: the walkers' start, resampled from the last round;
-5. :func:`run_until_converged`: emcee in chunks until the honest ESS rule holds.
+3. :func:`tune_proposal`: short emcee runs (HMC, independence, DE) refit the
+   proposal and mass matrix and adapt the HMC step (:func:`fit_proposal`,
+   adaptive importance sampling, is kept for experiments: it failed on
+   prior-held ridges, ``docs/bayes.md`` section 3);
+4. :func:`run_until_converged`: emcee in chunks until the honest ESS rule holds.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from .diagnostics import ensemble_ess, integrated_time
 #: leapfrog steps per HMC move (tuning and production runs)
 HMC_LEAPFROG = 5
 
-__all__ = ["ring_scale", "depth_scale", "log_jacobian", "to_sampling", "from_sampling", "sampling_jacobian",
-           "CollapsedTarget", "fit_proposal", "tune_proposal", "seeded_sampler",
-           "run_until_converged"]
+__all__ = ["ring_scale", "depth_scale", "log_jacobian", "to_sampling", "from_sampling",
+           "sampling_jacobian", "CollapsedTarget", "fit_proposal", "tune_proposal",
+           "seeded_sampler", "run_until_converged"]
 
 
 def ring_scale(theta):
@@ -290,19 +290,20 @@ def seeded_sampler(nwalkers, ndim, fn, rng, moves):
 def _assess(chain, tau_factor, burn_factor):
     """Burn-in, honest ESS and tau of a chain (T, W, d) in sampling coordinates; the verdict.
 
-    The ESS of each coordinate is the smaller of its sampling coordinate's and its
-    parameter's (``from_sampling``): the claim holds for both.
+    ESS is that of the parameters (``from_sampling``: what the user averages); tau,
+    for the ``tau_factor`` rule, is the larger of the parameter's and its sampling
+    coordinate's (``W T / ESS`` each), so neither is cut short.
     """
     total = len(chain)
     tau_w = integrated_time(chain[total // 5:])      # first fifth: provisional burn-in
-    burn = int(min(np.ceil(burn_factor * np.max(tau_w)), total // 2)) \
+    # at least a quarter: the start (the last tuning state) can sit off the stationary
+    # spread along the ridge for longer than the stationary tau suggests
+    burn = int(min(max(np.ceil(burn_factor * np.max(tau_w)), total // 4), total // 2)) \
         if np.all(np.isfinite(tau_w)) else total // 2
     kept = chain[burn:]
-    ess_s, _ = ensemble_ess(kept)
-    ess_p, _ = ensemble_ess(from_sampling(kept))
-    ess = np.minimum(ess_s, ess_p)
-    with np.errstate(divide="ignore"):
-        tau = np.where(ess > 0, kept.shape[0] * kept.shape[1] / ess, np.inf)
+    _, tau_s = ensemble_ess(kept)
+    ess, tau_p = ensemble_ess(from_sampling(kept))
+    tau = np.maximum(tau_s, tau_p)
     converged = bool(np.all(np.isfinite(tau)) and total - burn > tau_factor * np.max(tau))
     return burn, ess, tau, converged
 
@@ -311,7 +312,8 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                         burn_factor=5.0):
     """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
 
-    The progress bar counts the smallest ESS so far towards ``min_ess``.
+    The progress bar shows the percentage of the stopping rule met so far: the
+    smaller of ``min ESS / min_ess`` and ``kept steps / (tau_factor * max tau)``.
 
     Returns
     -------
@@ -324,7 +326,7 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
     if progress:
         from tqdm.auto import tqdm
 
-        pbar = tqdm(total=int(min_ess), desc="posterior ESS", unit="ess", leave=False)
+        pbar = tqdm(total=100, desc="stopping rule", unit="%", leave=False)
     try:
         while total < max_steps:
             n = min(chunk, max_steps - total)
@@ -335,8 +337,11 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
             info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(done),
                     "ess": ess}
             if pbar is not None:
-                pbar.n = int(min(np.min(ess), min_ess))
-                pbar.set_postfix(steps=total, tau=f"{np.max(tau):.1f}")
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    frac = min(np.min(ess) / min_ess, (total - burn) / (tau_factor * np.max(tau)))
+                pbar.n = int(100 * np.clip(np.nan_to_num(frac), 0.0, 1.0))
+                pbar.set_postfix(steps=total, ess=f"{np.min(ess):.0f}", tau=f"{np.max(tau):.1f}")
+                pbar.refresh()
             if done:
                 break
             # grow the next chunk to what the current tau says is still needed

@@ -196,7 +196,9 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
                "hmc_step_size": fit["step_size"]})
     psi = from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
+    # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
+                             batch=max(1, 500_000 // max(lik.n, 1)))
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
