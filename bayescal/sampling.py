@@ -57,6 +57,8 @@ __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConverged
 #: shares of the HMC and independence moves in the production run (the rest: DEMove)
 HMC_WEIGHT = 0.3
 IMH_WEIGHT = 0.6
+#: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
+HMC_PATH = 1.5
 
 
 
@@ -182,8 +184,11 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
     p0 = fit["state"]
     vg = target.value_and_grad if target.has_gradient else None
+    # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
+    n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
     prod_moves = default_moves(fit["mean"], fit["cov"], value_and_grad=vg,
-                               step_size=fit["step_size"]) if moves is None else moves
+                               step_size=fit["step_size"], n_leapfrog=n_leap) \
+        if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=100, progress=progress)
