@@ -28,6 +28,7 @@ import numpy as np
 from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
+from .model_grad import grad_terms
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
 
@@ -429,6 +430,46 @@ class LaserLikelihood:
                 per_point, r = mix(extra[..., -1], per_point, g["rr"] - g["gd"], self._n_rows,
                                    self.outlier_scale, laplace=True)
         return (per_point, g["x"], g["y"]) + g["C"] + (r,)
+
+    def grad_log_marginal(self, psi, q0, *, n_iter=4):
+        """:meth:`laplace`'s log marginal and its gradient in ``psi`` (envelope theorem).
+
+        With the Jeffreys point prior and given noise the log marginal is the
+        profile likelihood, its gradient ``-sum_i J_theta_i^T R_i`` at the modes.
+        Inferred noise adds its analytic derivatives, the mixture its weights
+        (:func:`~bayescal.model_grad.grad_terms`); the log-determinants' theta
+        dependence away from the reference noise is left out: approximate,
+        fine for HMC, whose acceptance test uses the exact value.
+
+        Parameters
+        ----------
+        psi : ndarray, shape (..., 7 + n_noise)
+        q0 : ndarray, shape (..., N, 2) or (N, 2)
+        n_iter : int
+            Gauss-Newton iterations of :meth:`laplace`.
+
+        Returns
+        -------
+        log_marginal : ndarray, shape (...)
+            Exactly :meth:`laplace`'s value.
+        grad : ndarray, shape (..., 7 + n_noise)
+            NaN where the value is ``-inf``.
+        """
+        psi = np.asarray(psi, dtype=float)
+        value, q, _ = self.laplace(psi, q0, n_iter=n_iter)
+        theta, extra = self.split(psi)
+        r = self._laplace_points(psi, q0, n_iter)[-1] if self.outliers else None
+        sig, w, _ = self.noise(extra)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x, y = q[..., 0], q[..., 1]
+            _, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
+            C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
+            det = C00 * C11 - C01 * C01
+            x = x - (C11 * g0 - C01 * g1) / det            # one more step: the modes
+            y = y - (C00 * g1 - C01 * g0) / det
+            grad = grad_terms(self, theta, x, y, sig, w, outlier_resp=r, logit_w=extra[..., -1])
+        grad = np.where(np.isfinite(value)[..., None], grad, np.nan)
+        return value, grad
 
     def _exact_terms(self, psi, q):
         """Per-point exact log density of (data, q) given psi, normalisers included."""

@@ -3,13 +3,13 @@
 :func:`bayescal.sampling.sample_collapsed` calls them in order:
 
 1. :func:`to_sampling` / :func:`from_sampling`: sampling coordinates (ring radii in
-   place of gamma, ``docs/bayes.md`` section 3);
+   place of gamma, ``H = h * depth_scale`` in place of h, ``docs/bayes.md`` section 3);
 2. :class:`CollapsedTarget`: the log posterior with the points integrated out;
-3. :func:`fit_proposal`: adaptive importance sampling fits a Student-t to the
-   target (mean and covariance from weighted draws, several rounds), which both
-   tunes the independence proposal and gives near-stationary walker starts;
-4. :func:`place_walkers`: the walkers' start, resampled from the last round;
-5. :func:`run_until_converged`: emcee in chunks until the honest ESS rule holds.
+3. :func:`tune_proposal`: short emcee runs (HMC, independence, DE) refit the
+   proposal and mass matrix and adapt the HMC step (:func:`fit_proposal`,
+   adaptive importance sampling, is kept for experiments: it failed on
+   prior-held ridges, ``docs/bayes.md`` section 3);
+4. :func:`run_until_converged`: emcee in chunks until the honest ESS rule holds.
 """
 
 from __future__ import annotations
@@ -18,9 +18,12 @@ import numpy as np
 
 from .diagnostics import ensemble_ess, integrated_time
 
-__all__ = ["ring_scale", "to_sampling", "from_sampling", "sampling_jacobian",
-           "CollapsedTarget", "fit_proposal", "tune_proposal", "seeded_sampler",
-           "run_until_converged"]
+#: leapfrog steps per HMC move (tuning and production runs)
+HMC_LEAPFROG = 5
+
+__all__ = ["ring_scale", "depth_scale", "log_jacobian", "to_sampling", "from_sampling",
+           "sampling_jacobian", "CollapsedTarget", "fit_proposal", "tune_proposal",
+           "seeded_sampler", "run_until_converged"]
 
 
 def ring_scale(theta):
@@ -36,12 +39,27 @@ def ring_scale(theta):
         return np.where(xi - np.cos(beta) > 0, np.sin(beta) / (xi - np.cos(beta)), np.nan)
 
 
+def depth_scale(theta):
+    """``(1 - xi cos(beta)) * ring_scale``: the pixel radius' sensitivity to ``h / rho``.
+
+    A point at horizontal range ``rho`` images at radius
+    ``gamma * ring_scale * (1 - (1 - xi cos(beta)) * ring_scale * h / rho + ...)``:
+    after the ring radius, the data pin ``h * depth_scale``, a curved ridge in
+    ``(xi, h, beta)``; the sampler uses it in place of ``h``.
+    """
+    xi, beta = theta[..., 0], theta[..., 6]
+    return (1.0 - xi * np.cos(beta)) * ring_scale(theta)
+
+
 def to_sampling(psi):
-    """Sampling coordinates: psi (..., d) with (gamma_u, gamma_v) replaced by the ring radii."""
+    """Sampling coordinates: psi (..., d) with (gamma_u, gamma_v) replaced by the ring radii
+    ``R = gamma * ring_scale`` and ``h`` by ``H = h * depth_scale`` (``docs/bayes.md``
+    section 3)."""
     s = np.array(psi, dtype=float)
     k = ring_scale(s)
     s[..., 1] *= k
     s[..., 2] *= k
+    s[..., 5] *= depth_scale(s)
     return s
 
 
@@ -51,7 +69,14 @@ def from_sampling(s):
     k = ring_scale(psi)
     psi[..., 1] /= k
     psi[..., 2] /= k
+    psi[..., 5] /= depth_scale(psi)
     return psi
+
+
+def log_jacobian(psi):
+    """``log |d psi / d s|`` of :func:`from_sampling` at psi (..., d)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return -2.0 * np.log(ring_scale(psi)) - np.log(np.abs(depth_scale(psi)))
 
 
 def sampling_jacobian(psi, eps=1e-7):
@@ -83,7 +108,7 @@ class CollapsedTarget:
 
     Called with sampling coordinates ``s`` (W, d); returns log densities (W,),
     ``-inf`` outside the support. The density includes the Jacobian
-    ``|d psi / d s| = ring_scale^-2`` of the change of variables.
+    ``|d psi / d s|`` (:func:`log_jacobian`) of the change of variables.
     """
 
     def __init__(self, lik, prior, q_start, n_iter):
@@ -99,7 +124,7 @@ class CollapsedTarget:
         self.n_calls += len(s)
         psi = from_sampling(s)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lp = self.log_prior(psi) - 2.0 * np.log(ring_scale(psi))
+            lp = self.log_prior(psi) + log_jacobian(psi)
         out = np.full(len(psi), -np.inf)
         ok = np.isfinite(lp)
         if np.any(ok):
@@ -107,6 +132,50 @@ class CollapsedTarget:
             out[ok] = lp[ok] + ll
         return np.where(np.isfinite(out), out, -np.inf)
 
+
+    @property
+    def has_gradient(self):
+        """Whether the likelihood offers ``grad_log_marginal`` (else gradient moves are off)."""
+        return callable(getattr(self.lik, "grad_log_marginal", None))
+
+    def _log_prior_s(self, s):
+        """Log prior of psi plus the log Jacobian, as a function of ``s`` (..., d)."""
+        psi = from_sampling(s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.log_prior(psi) + log_jacobian(psi)
+
+    def value_and_grad(self, s, eps=1e-6):
+        """Log density (W,) and its gradient (W, d) in sampling coordinates.
+
+        The likelihood part is analytic (``lik.grad_log_marginal``), chained
+        through ``d psi / d s``; the prior and the change-of-variables term
+        (cheap) by central differences, all walkers and directions in one call.
+        The value is exactly :meth:`__call__`'s. NaN gradient where the value is
+        ``-inf``.
+        """
+        s = np.atleast_2d(np.asarray(s, float))
+        W, d = s.shape
+        self.n_calls += W
+        h = eps * np.maximum(1.0, np.abs(s))                      # (W, d)
+        E = np.eye(d)[:, None, :] * h[None]                       # (d, W, d)
+        sp = np.concatenate([s[None] + E, s[None] - E])           # (2d, W, d)
+        with np.errstate(invalid="ignore"):
+            g_prior = ((self._log_prior_s(sp[:d]) - self._log_prior_s(sp[d:])).T / (2 * h))
+            dpsi = (from_sampling(sp[:d]) - from_sampling(sp[d:])) / (2 * h.T[..., None])
+        lp = self._log_prior_s(s)
+        psi = from_sampling(s)
+        out = np.full(W, -np.inf)
+        grad = np.full((W, d), np.nan)
+        ok = np.isfinite(lp)
+        if np.any(ok):
+            ll, g_psi = self.lik.grad_log_marginal(psi[ok], self.q_start, n_iter=self.n_iter)
+            out[ok] = lp[ok] + ll
+            # dpsi[k, w, j] = d psi_j / d s_k
+            grad[ok] = g_prior[ok] + np.einsum("kwj,wj->wk", dpsi[:, ok], g_psi)
+        bad = ~np.isfinite(out)
+        out[bad] = -np.inf
+        grad[bad] = np.nan
+        return out, grad
 
 def _t_draws(mean, L, df, n, rng):
     """n draws of the multivariate t_df(mean, L L^T) and their log density (up to const)."""
@@ -161,38 +230,51 @@ def fit_proposal(target, mean, cov, rng, *, n_draws, n_rounds=4, df=5.0, inflate
             "logw_sd": logw_sd}
 
 
-def tune_proposal(target, p0, mean, cov, rng, *, n_steps, n_rounds=3, moves=None):
-    """Fit the independence proposal from short emcee runs, each using the previous fit.
+def tune_proposal(target, p0, mean, cov, rng, *, n_steps, n_rounds=3, moves=None,
+                  gradient=False, step_size=0.3):
+    """Fit the proposal (and the HMC step) from short emcee runs, each using the previous fit.
 
     Round r runs ``n_steps`` steps with the independence proposal ``t_5(mean, cov)``
     (inflated 1.5x in the first round, whose ``cov`` is the Laplace one) mixed with
-    DEMove, and refits mean and covariance from the last two thirds of its chain.
-    As the proposal improves, the chain mixes faster and the next fit is better.
+    DEMove and, with ``gradient=True``, :class:`~bayescal.moves.HMCMove` (mass
+    matrix ``cov^-1``, step size adapted towards 75 % acceptance, carried over
+    rounds). Each round refits mean and covariance from the last two thirds of
+    its chain: as the proposal and the mass matrix improve, the chain mixes
+    faster and the next fit is better. These chains are discarded.
 
     Returns
     -------
     dict
         ``mean``, ``cov``, ``state`` (the last walker positions), ``acceptance``
-        per round.
+        per round, ``step_size`` (the adapted HMC step, or the input).
     """
     import emcee
 
-    from .moves import IndependenceMove
+    from .moves import HMCMove, IndependenceMove
 
     state, acc = p0, []
     ndim = len(mean)
     for r in range(int(n_rounds)):
-        mv = moves if moves is not None else [
-            (IndependenceMove(mean, (1.5 if r == 0 else 1.0) * cov, scale=1.1), 0.7),
-            (emcee.moves.DEMove(), 0.3)]
+        imh = IndependenceMove(mean, (1.5 if r == 0 else 1.0) * cov, scale=1.1)
+        if moves is not None:
+            mv = moves
+        elif gradient:
+            hmc = HMCMove(target.value_and_grad, cov, step_size=step_size,
+                          n_steps=HMC_LEAPFROG, adapt=True)
+            mv = [(hmc, 0.3), (imh, 0.6), (emcee.moves.DEMove(), 0.1)]
+        else:
+            mv = [(imh, 0.7), (emcee.moves.DEMove(), 0.3)]
         tune = seeded_sampler(len(p0), ndim, target, rng, mv)
         state = tune.run_mcmc(state, int(n_steps), progress=False)
         acc.append(float(np.mean(tune.acceptance_fraction)))
+        if moves is None and gradient:
+            step_size = hmc.step_size
         ch = tune.get_chain(discard=int(n_steps) // 3).reshape(-1, ndim)
         new_cov = np.cov(ch, rowvar=False)
         if np.all(np.linalg.eigvalsh(new_cov) > 0):
             mean, cov = ch.mean(axis=0), new_cov
-    return {"mean": mean, "cov": cov, "state": state, "acceptance": acc}
+    return {"mean": mean, "cov": cov, "state": state, "acceptance": acc,
+            "step_size": float(step_size)}
 
 
 def seeded_sampler(nwalkers, ndim, fn, rng, moves):
@@ -206,12 +288,22 @@ def seeded_sampler(nwalkers, ndim, fn, rng, moves):
 
 
 def _assess(chain, tau_factor, burn_factor):
-    """Burn-in, honest ESS and tau of a chain (T, W, d); the rule's verdict."""
+    """Burn-in, honest ESS and tau of a chain (T, W, d) in sampling coordinates; the verdict.
+
+    ESS is that of the parameters (``from_sampling``: what the user averages); tau,
+    for the ``tau_factor`` rule, is the larger of the parameter's and its sampling
+    coordinate's (``W T / ESS`` each), so neither is cut short.
+    """
     total = len(chain)
     tau_w = integrated_time(chain[total // 5:])      # first fifth: provisional burn-in
-    burn = int(min(np.ceil(burn_factor * np.max(tau_w)), total // 2)) \
+    # at least a quarter: the start (the last tuning state) can sit off the stationary
+    # spread along the ridge for longer than the stationary tau suggests
+    burn = int(min(max(np.ceil(burn_factor * np.max(tau_w)), total // 4), total // 2)) \
         if np.all(np.isfinite(tau_w)) else total // 2
-    ess, tau = ensemble_ess(chain[burn:])
+    kept = chain[burn:]
+    _, tau_s = ensemble_ess(kept)
+    ess, tau_p = ensemble_ess(from_sampling(kept))
+    tau = np.maximum(tau_s, tau_p)
     converged = bool(np.all(np.isfinite(tau)) and total - burn > tau_factor * np.max(tau))
     return burn, ess, tau, converged
 
@@ -220,7 +312,8 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                         burn_factor=5.0):
     """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
 
-    The progress bar counts the smallest ESS so far towards ``min_ess``.
+    The progress bar shows the percentage of the stopping rule met so far: the
+    smaller of ``min ESS / min_ess`` and ``kept steps / (tau_factor * max tau)``.
 
     Returns
     -------
@@ -233,7 +326,7 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
     if progress:
         from tqdm.auto import tqdm
 
-        pbar = tqdm(total=int(min_ess), desc="posterior ESS", unit="ess", leave=False)
+        pbar = tqdm(total=100, desc="stopping rule", unit="%", leave=False)
     try:
         while total < max_steps:
             n = min(chunk, max_steps - total)
@@ -244,8 +337,11 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
             info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(done),
                     "ess": ess}
             if pbar is not None:
-                pbar.n = int(min(np.min(ess), min_ess))
-                pbar.set_postfix(steps=total, tau=f"{np.max(tau):.1f}")
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    frac = min(np.min(ess) / min_ess, (total - burn) / (tau_factor * np.max(tau)))
+                pbar.n = int(100 * np.clip(np.nan_to_num(frac), 0.0, 1.0))
+                pbar.set_postfix(steps=total, ess=f"{np.min(ess):.0f}", tau=f"{np.max(tau):.1f}")
+                pbar.refresh()
             if done:
                 break
             # grow the next chunk to what the current tau says is still needed

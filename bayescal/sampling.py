@@ -36,11 +36,12 @@ from ._validation import resolve_rng
 from .diagnostics import ChainDiagnostics, integrated_time
 from .floorplan import FloorPlan
 from .model import NOISE_BOUNDS, LaserLikelihood, draw_points
-from .moves import IndependenceMove
+from .moves import HMCMove, IndependenceMove
 from .parameters import from_identifiable
 from .plan_sampling import SCENE_REQUIRED, sample_plan_posterior
 from .priors import Prior
 from .sampler_steps import (
+    HMC_LEAPFROG,
     CollapsedTarget,
     from_sampling,
     ring_scale,
@@ -55,8 +56,12 @@ __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConverged
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
            "ring_scale", "to_sampling", "from_sampling"]
 
-#: share of the independence proposal in the production run (the rest: DEMove)
-IMH_WEIGHT = 0.8
+#: shares of the HMC and independence moves in the production run (the rest: DEMove)
+HMC_WEIGHT = 0.3
+IMH_WEIGHT = 0.6
+#: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
+HMC_PATH = 1.5
+
 
 
 class NotConvergedWarning(UserWarning):
@@ -77,13 +82,17 @@ class NotConvergedError(RuntimeError):
         self.posterior = posterior
 
 
-def default_moves(mean=None, cov=None):
+def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
+                  n_leapfrog=None):
     """emcee moves used by default.
 
-    With a proposal ``mean`` and ``cov`` (fitted by adaptive importance sampling):
-    :class:`~bayescal.moves.IndependenceMove` (80 %, walkers move independently of
-    each other) mixed with :class:`emcee.moves.DEMove` (20 %, for robustness where
-    the proposal misses). Without: DEMove (80 %) and StretchMove (20 %).
+    With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
+    collapsed target's): :class:`~bayescal.moves.HMCMove` (``HMC_WEIGHT``, mass
+    matrix ``cov^-1``, leapfrog step ``step_size`` in whitened units),
+    :class:`~bayescal.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
+    between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
+    (the rest). Without a gradient: the independence proposal (80 %) and DEMove
+    (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
     ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
     distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
     """
@@ -91,8 +100,15 @@ def default_moves(mean=None, cov=None):
 
     if mean is None:
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    return [(IndependenceMove(mean, cov, scale=1.1), IMH_WEIGHT),
-            (emcee.moves.DEMove(), 1.0 - IMH_WEIGHT)]
+    if value_and_grad is None:
+        return [(IndependenceMove(mean, cov, scale=1.1), 0.8),
+                (emcee.moves.DEMove(), 0.2)]
+    n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
+    moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
+              HMC_WEIGHT),
+             (IndependenceMove(mean, cov, scale=1.1), IMH_WEIGHT),
+             (emcee.moves.DEMove(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
+    return [(m, w) for m, w in moves if w > 0]
 
 
 def _moves_text(moves):
@@ -114,8 +130,9 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
     else:
         raise RuntimeError("could not place the walkers: the MAP start is outside the support")
     if n_tune <= 0:
-        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": []}
-    return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves)
+        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3}
+    return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
+                         gradient=target.has_gradient)
 
 
 def _thin(chain, burn, n_samples):
@@ -149,7 +166,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     n_point_mh, n_iter :
         As in :func:`sample_posterior`.
     n_tune : int, optional
-        Draws per round of the proposal fit (default ``100 * d``).
+        Steps per tuning round (default 60 with a gradient, else 150).
 
     Returns
     -------
@@ -160,25 +177,35 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     rng = resolve_rng(rng)
     ndim = len(psi_map)
     n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
-    n_tune = 150 if n_tune is None else int(n_tune)
     target = CollapsedTarget(lik, prior, q_map, n_iter)
+    if n_tune is None:                      # HMC mixes fast: short tuning rounds suffice
+        n_tune = 60 if target.has_gradient and moves is None else 150
+    n_tune = int(n_tune)
     J = sampling_jacobian(psi_map)
     s_map, cov_s = to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
     p0 = fit["state"]
-    prod_moves = default_moves(fit["mean"], fit["cov"]) if moves is None else moves
+    vg = target.value_and_grad if target.has_gradient else None
+    # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
+    n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
+    prod_moves = default_moves(fit["mean"], fit["cov"], value_and_grad=vg,
+                               step_size=fit["step_size"], n_leapfrog=n_leap) \
+        if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=100, progress=progress)
     diag = ChainDiagnostics(
-        names=("xi", "R_u", "R_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
+        names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
         tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
         n_walkers=n_walkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
         converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
         moves=_moves_text(prod_moves),
-        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls)})
+        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
+               "hmc_step_size": fit["step_size"]})
     psi = from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2)
+    # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
+                             batch=max(1, 500_000 // max(lik.n, 1)))
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
@@ -228,8 +255,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         emcee moves of the production run (default :func:`default_moves`: the
         fitted independence proposal mixed with differential evolution).
     n_tune : int, optional
-        Draws per round of the adaptive-importance-sampling fit of the proposal
-        (default ``100 * ndim``).
+        Steps per round of the proposal and step-size tuning (3 rounds, discarded;
+        default 60, or 150 for a likelihood without a gradient).
     progress : bool, optional
         Show a progress bar.
     on_unconverged : {"warn", "raise"}

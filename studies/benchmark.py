@@ -223,24 +223,54 @@ def _naive_joint(n_points, n_steps):
     return ds, t, ess, tau, n_walkers
 
 
-def _collapsed(ds, sigma_scene, *, min_ess=1000):
+SAMPLER_SEEDS = (0, 1, 2)
+#: N of the one large-N sampler row (set by --large-n; 0 = skipped)
+LARGE_N = 0
+
+
+def _room_for(range_mm, model, n_points, *, approx_error=0.05, sigma_px=0.1, rng=3):
+    ds = bc.simulate_room(range_mm=range_mm, n_points=n_points, sigma_px=sigma_px,
+                          approx_error=approx_error, approx_model=model, rng=rng)
+    return ds, np.maximum(ds.sigma_scene, 1.0)
+
+
+def _collapsed_runs(ds, sigma_scene, seeds, *, sigma_px="given", **kw):
+    """Median wall time, median time per 1000 ESS (min over parameters), the runs' facts."""
     import warnings
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        t, post = _once(lambda: bc.sample_posterior(
-            ds.pixels, ds.approx_points, sigma_px=ds.sigma_px, sigma_scene=sigma_scene,
-            rng=0, progress=False, min_ess=min_ess))
-    return t, post, [str(w.message) for w in caught]
+    sp = ds.sigma_px if sigma_px == "given" else sigma_px
+    times, per_k, facts = [], [], []
+    for seed in seeds:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t, post = _once(lambda s=seed: bc.sample_posterior(
+                ds.pixels, ds.approx_points, sigma_px=sp, sigma_scene=sigma_scene, rng=s,
+                progress=False, **kw))
+        ess = float(np.min(post.ess))
+        times.append(t)
+        per_k.append(1000 * t / ess)
+        facts.append((post.converged, ess, float(np.max(post.tau)), post.n_steps,
+                      [str(w.message)[:60] for w in caught
+                       if issubclass(w.category, bc.NotConvergedWarning)]))
+    return float(np.median(times)), float(np.median(per_k)), facts
+
+
+def _facts_text(facts):
+    conv = sum(f[0] for f in facts)
+    return (f"{conv}/{len(facts)} converged; min ESS {min(f[1] for f in facts):.0f}, "
+            f"max tau {max(f[2] for f in facts):.1f}, steps {'/'.join(str(f[3]) for f in facts)}")
 
 
 @benchmark("sampler")
 def bench_sampler(timer):
-    """Collapsed sampler (emcee over theta, points integrated out) on 580 points until every
-    parameter has ESS >= 1000, beside the naive full-joint emcee at N = 10 and N = 40.
-    Rows give the time per 1000 effective samples (lower is better)."""
+    """Collapsed sampler until every parameter has an honest ESS >= 1000 (default settings),
+    beside the naive full-joint emcee at N = 10 and N = 40 (the same-run baseline). Rows
+    give the median over seeds of the time per 1000 effective samples (lower is better) and
+    the median wall time; the target is <= 10 s at N = 580, <= 60 s at N = 5000, <= 5 min
+    at N = 20 000."""
     quick = timer.repeats < 7
     steps = {10: 1000 if quick else 3000, 40: 1000 if quick else 3000}
+    seeds = SAMPLER_SEEDS[:1] if quick else SAMPLER_SEEDS
     rows = []
     base = {}
     for n in (10, 40):
@@ -252,31 +282,44 @@ def bench_sampler(timer):
                         f"(chain < 50 tau: tau underestimated, so its ESS/s "
                         f"{ess / t:.2g} is an upper bound)"))
     ds40 = base[40][0]
-    t, post, warn = _collapsed(ds40, ds40.sigma_scene)
-    ess = float(np.min(post.ess))
+    med, per_k, facts = _collapsed_runs(ds40, ds40.sigma_scene, seeds)
     rows.append(Row("posterior sampling", "collapsed sample_posterior, same N=40 data",
-                    1000 * t / ess, base[40][1] / (1000 * t / ess),
-                    f"vs naive N=40; {t:.1f} s to min ESS {ess:.0f} (max tau "
-                    f"{np.max(post.tau):.1f}); {'converged' if post.converged else warn}"))
-    # fig9: the paper's protocol (no z information in the approximate points); gaussian:
-    # every coordinate approximate (the posterior is closer to Gaussian)
-    for model in ("fig9", "gaussian"):
-        for label, range_mm in (("small room 1000 mm", 1000), ("large room 5000 mm", 5000)):
-            rows.append(_collapsed_row(label, range_mm, model, base[40][1]))
+                    per_k, base[40][1] / per_k, f"vs naive N=40; median wall {med:.1f} s; "
+                    + _facts_text(facts)))
+    settings = [("1000 mm, fig9 (z unknown)", 1000, "fig9", 580, {}),
+                ("5000 mm, fig9 (z unknown)", 5000, "fig9", 580, {}),
+                ("1000 mm, gaussian (z known)", 1000, "gaussian", 580, {}),
+                ("5000 mm, gaussian (z known)", 5000, "gaussian", 580, {}),
+                ("1000 mm, wall", 1000, "wall", 580, {}),
+                ("5000 mm, fig9, sigma_px inferred", 5000, "fig9", 580, {"sigma_px": None}),
+                ("1000 mm, fig9 (z unknown)", 1000, "fig9", 5000, {})]
+    for label, range_mm, model, n, kw in settings:
+        ds, sig = _room_for(range_mm, model, n)
+        med, per_k, facts = _collapsed_runs(ds, sig, seeds[:1] if n > 1000 else seeds, **kw)
+        target = 10 if n <= 1000 else 60
+        rows.append(Row("posterior sampling", f"collapsed, N={n}, {label}, 0.1 px, 5 %",
+                        per_k, base[40][1] / per_k,
+                        f"vs naive N=40; median wall {med:.1f} s (target <= {target} s); "
+                        + _facts_text(facts)))
+    if LARGE_N:
+        rows.append(_large_n_row(base[40][1], LARGE_N))
     return rows
 
 
-def _collapsed_row(label, range_mm, model, base_seconds):
-    ds = bc.simulate_room(range_mm=range_mm, n_points=580, sigma_px=0.1, approx_error=0.05,
-                          approx_model=model, rng=3)
-    t, post, warn = _collapsed(ds, np.maximum(ds.sigma_scene, 1.0))
-    ess = float(np.min(post.ess))
-    return Row("posterior sampling", f"collapsed sample_posterior, N=580, {label}, "
-               f"0.1 px, 5 % ({model})", 1000 * t / ess, base_seconds / (1000 * t / ess),
-               f"vs naive N=40; wall time {t:.1f} s until min ESS {ess:.0f} "
-               f"(target <= 20 s at ESS >= 1000); max tau {np.max(post.tau):.1f}, "
-               f"{post.n_steps} steps x {post.n_walkers} walkers; "
-               f"{'converged' if post.converged else 'NOT converged: ' + str(warn)}")
+def _large_n_row(base_seconds, n_points):
+    """One run at N = 20 000 (n_samples=200: 200 x N x 3 point draws), with peak memory."""
+    import tracemalloc
+
+    ds, sig = _room_for(1000, "fig9", n_points)
+    tracemalloc.start()
+    med, per_k, facts = _collapsed_runs(ds, sig, (0,), n_samples=200)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return Row("posterior sampling", f"collapsed, N={n_points}, 1000 mm, fig9, 0.1 px, 5 %, "
+               f"n_samples=200", per_k, base_seconds / per_k,
+               f"vs naive N=40; one run, wall {med:.1f} s (target <= 300 s); peak traced "
+               f"memory {peak / 2**20:.0f} MiB (tracemalloc: numpy arrays included); "
+               + _facts_text(facts))
 
 
 def machine_facts():
@@ -293,6 +336,9 @@ def machine_facts():
         "python": sys.version.split()[0],
         "numpy": np.__version__,
         "bayescal": bc.__version__,
+        "load average (1 min) at the end": f"{os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} cores (the machine is shared with other jobs: compare ratios, "
+        f"not absolute times)",
     }
 
 
@@ -356,7 +402,11 @@ def main(argv=None):
     parser.add_argument("--only", choices=sorted(BENCHMARKS), action="append",
                         help="run only this benchmark (repeatable)")
     argv = sys.argv[1:] if argv is None else list(argv)
+    parser.add_argument("--large-n", type=int, default=0,
+                        help="also time the sampler once at this N (e.g. 20000; minutes)")
     args = parser.parse_args(argv)
+    global LARGE_N
+    LARGE_N = args.large_n
     timer = Timer(repeats=3, min_time=0.01) if args.quick else Timer()
     rows = []
     for name in args.only or BENCHMARKS:

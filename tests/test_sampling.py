@@ -175,29 +175,142 @@ ROOMS_FOR_ESS = {
                                          "approx_error": 0.02},
 }
 
+def _target(ds, **kw):
+    from bayescal.model import LaserLikelihood
+    from bayescal.sampler_steps import CollapsedTarget
 
-@pytest.mark.slow
-@pytest.mark.parametrize("room", list(ROOMS_FOR_ESS))
-def test_claimed_monte_carlo_error_matches_the_scatter_over_seeds(room):
-    """Is the reported ESS honest? One dataset, 10 sampler seeds: the sd of the 10 posterior
-    means of each identifiable parameter over the rms claimed Monte-Carlo error
-    sd / sqrt(ESS) follows sqrt(chi2_9 / 9) if the ESS is right. Its 95 % band is 0.55-1.45;
-    7 parameters in one test, so the asserted band is the family-wise 99.9 % one
-    (per parameter 1.4e-4 each side: 0.36-1.86; false-failure rate ~1e-3 per room). n_samples
-    is large so that the thinned samples' mean is the chain's mean."""
-    ds = bc.simulate_room(range_mm=ROOMS_FOR_ESS[room]["range_mm"], n_points=300,
-                          sigma_px=0.2, approx_error=ROOMS_FOR_ESS[room]["approx_error"],
-                          approx_model=ROOMS_FOR_ESS[room]["approx_model"], rng=21)
+    lik = LaserLikelihood(ds.pixels, ds.approx_points, **kw)
+    lik.set_reference_noise(sigma_px=0.3, kappa=0.02)
+    th = ds.params.to_identifiable()
+    return lik, CollapsedTarget(lik, bc.Prior(), lik.initial_q(th), 4), th
+
+
+@pytest.mark.parametrize("noise", ["given", "sigma_px and kappa inferred"])
+def test_collapsed_gradient_matches_finite_differences(noise):
+    """The analytic gradient (envelope theorem, sampling coordinates, prior by differences)
+    against central differences of the target itself, at points off the truth. With given
+    noise it is exact up to the Laplace step's convergence (4 Gauss-Newton iterations) and
+    the differences' error: 1e-4 of the largest component. With inferred noise off the
+    reference levels the log-determinants' theta-dependence is left out (docs/bayes.md
+    section 3): a few % of the largest component, 5 % asserted."""
+    from bayescal.sampler_steps import to_sampling
+
+    ds = _room(80)
+    kw = {"sigma_px": 0.3, "sigma_scene": ds.sigma_scene} if noise == "given" else \
+        {"sigma_px": None, "sigma_scene": None}
+    lik, target, th = _target(ds, **kw)
+    psi = np.concatenate([th, np.log([0.33, 0.022])[:lik.n_noise]])
+    rng = np.random.default_rng(0)
+    s = to_sampling(psi * (1 + 2e-3 * rng.standard_normal((3, len(psi)))))
+    v, g = target.value_and_grad(s)
+    np.testing.assert_array_equal(v, target(s))
+    fd = np.empty_like(g)
+    for k in range(len(psi)):
+        e = np.zeros(len(psi))
+        e[k] = 1e-6 * max(1.0, abs(s[0, k]))
+        fd[:, k] = (target(s + e) - target(s - e)) / (2 * e[k])
+    tol = 1e-4 if noise == "given" else 5e-2
+    scale = np.max(np.abs(fd), axis=1, keepdims=True)
+    assert np.all(np.abs(g - fd) < tol * scale), (g - fd) / scale
+
+
+def test_sampling_coordinates_round_trip_and_jacobian():
+    from bayescal.sampler_steps import (
+        from_sampling,
+        log_jacobian,
+        sampling_jacobian,
+        to_sampling,
+    )
+
+    psi = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    np.testing.assert_allclose(from_sampling(to_sampling(psi)), psi, rtol=1e-12)
+    J = sampling_jacobian(psi)                                  # d s / d psi
+    np.testing.assert_allclose(log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+
+
+class _NoGradient:
+    """A protocol likelihood without the optional ``grad_log_marginal``."""
+
+    def __init__(self, lik):
+        self._lik = lik
+
+    def __getattr__(self, name):
+        if name == "grad_log_marginal":
+            raise AttributeError(name)
+        return getattr(self._lik, name)
+
+
+def test_sampler_falls_back_without_a_gradient():
+    from bayescal.model import LaserLikelihood
+
+    ds = _room(60)
+    lik = LaserLikelihood(ds.pixels, ds.approx_points, sigma_px=0.3, sigma_scene=ds.sigma_scene)
+    res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                    sigma_scene=ds.sigma_scene)
+    sol = res.extras["map"]
+    run = bc.sampling.sample_collapsed(_NoGradient(lik), bc.Prior(), sol.theta, sol.cov_theta,
+                                       sol.q, rng=0, min_ess=200, n_samples=100,
+                                       progress=False)
+    assert "HMCMove" not in run["diagnostics"].moves
+    assert run["diagnostics"].converged
+    run = bc.sampling.sample_collapsed(lik, bc.Prior(), sol.theta, sol.cov_theta, sol.q, rng=0,
+                                       min_ess=200, n_samples=100, progress=False)
+    assert "HMCMove" in run["diagnostics"].moves and run["diagnostics"].converged
+
+
+
+def _seed_scatter_ratios(room, n_seeds=10):
+    """sd over sampler seeds of the posterior means / rms claimed Monte-Carlo error, (7,)."""
+    spec = ROOMS_FOR_ESS[room]
+    ds = bc.simulate_room(range_mm=spec["range_mm"], n_points=300, sigma_px=0.2,
+                          approx_error=spec["approx_error"], approx_model=spec["approx_model"],
+                          rng=21)
     sig = np.maximum(ds.sigma_scene, 1.0)
     means, errs = [], []
-    for seed in range(10):
+    for seed in range(n_seeds):
         post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.2, sigma_scene=sig,
                                    rng=100 + seed, progress=False, min_ess=400,
                                    n_samples=20000, n_point_mh=0, on_unconverged="raise")
         th = post.theta_samples
         means.append(th.mean(axis=0))
         errs.append(th.std(axis=0) / np.sqrt(post.ess[:7]))
-    ratio = np.std(means, axis=0, ddof=1) / np.sqrt(np.mean(np.square(errs), axis=0))
+    return np.std(means, axis=0, ddof=1) / np.sqrt(np.mean(np.square(errs), axis=0))
+
+
+_RATIOS = {}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("room", list(ROOMS_FOR_ESS))
+def test_claimed_monte_carlo_error_matches_the_scatter_over_seeds(room):
+    """Is the reported ESS honest? One dataset, 10 sampler seeds: the sd of the 10 posterior
+    means of each identifiable parameter over the rms claimed Monte-Carlo error
+    sd / sqrt(ESS) follows sqrt(chi2_9 / 9) if the ESS is right. Its 95 % band is 0.55-1.44;
+    7 parameters in one test, so the asserted per-parameter band is the family-wise 99.9 %
+    one (1.4e-4 each side: 0.36-1.86; false-failure rate ~1e-3 per room, at most 7 x 2.8e-4
+    whatever the parameters' correlation). That wide band alone would pass an ESS off by
+    2x, so the pooled statistic is checked too (next test). n_samples is large so that the
+    thinned samples' mean is the chain's mean."""
+    ratio = _seed_scatter_ratios(room)
+    _RATIOS[room] = ratio
     print(room, np.round(ratio, 2))
     lo, hi = np.sqrt(stats.chi2(9).ppf([1.4e-4, 1 - 1.4e-4]) / 9)
     assert np.all((ratio > lo) & (ratio < hi)), ratio
+
+
+@pytest.mark.slow
+def test_pooled_seed_scatter_is_within_its_chi_square_band():
+    """Pooled over both rooms: the mean of the 14 squared ratios. Each squared ratio is
+    chi2_9 / 9 under an honest ESS; the 7 of one room share chains and are correlated (the
+    (xi, gamma, h, beta) ridge moves together), so the null distribution lies between
+    chi2_126 / 126 (all independent) and chi2_18 / 18 (fully correlated within each room,
+    the two rooms independent). The asserted band is the 99 % band of the latter, the wider:
+    false-failure rate <= 1 %. An ESS optimistic by 2x on every parameter moves the
+    statistic to ~2, beyond 1.89 in about half the runs, by 3x to ~3, almost always beyond;
+    the per-parameter band above alone would pass both."""
+    for room in ROOMS_FOR_ESS:
+        if room not in _RATIOS:
+            _RATIOS[room] = _seed_scatter_ratios(room)
+    pooled = np.mean(np.square(np.concatenate([_RATIOS[r] for r in ROOMS_FOR_ESS])))
+    lo, hi = stats.chi2(18).ppf([0.005, 0.995]) / 18
+    assert lo < pooled < hi, pooled
