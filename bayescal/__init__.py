@@ -14,8 +14,9 @@ from .floorplan import FloorPlan
 from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .metrics import reconstruction_error, reconstruction_errors
 from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
-from .posterior import Posterior, Reconstruction, load_posterior
+from .posterior import Posterior, load_posterior
 from .priors import Prior, default_prior
+from .reconstruction import Reconstruction
 from .results import (
     CalibrationResult,
     ConvergenceError,

@@ -9,16 +9,13 @@ rho_i / tan(beta) - h)``. The model (``docs/bayes.md``)::
     pixels_i        ~ N(project(theta, P_i), sigma_px^2 I_2)
     approx_points_i ~ N(P_i, diag(sigma_scene_i^2))       (inf = axis not used)
 
-Each point contributes five whitened residuals: two pixel rows, three scene
-rows. :class:`LaserLikelihood` returns them with their Jacobians (analytic),
-vectorized over any leading axes (walkers) and the N points; the least
-squares (:mod:`bayescal.simultaneous`), the collapsed sampler and the
-brute-force joint sampler (:mod:`bayescal.sampling`) all call it.
+Each point contributes five whitened residuals (two pixel, three scene rows),
+returned with analytic Jacobians, vectorized over leading axes (walkers) and
+the N points; the least squares and both samplers all call it.
 
-Noise levels are either given or inferred: ``sigma_px = None`` adds
-``log sigma_px`` to the sampled vector; ``sigma_scene = None`` adds
-``log kappa`` with ``sigma_scene_i = kappa * rho_i`` on every axis (a relative
-error of the approximate point's horizontal range ``rho_i``).
+Noise levels are given or inferred: ``sigma_px = None`` adds ``log sigma_px``
+to the sampled vector, ``sigma_scene = None`` adds ``log kappa`` with
+``sigma_scene_i = kappa * rho_i`` (``rho_i`` the approximate point's range).
 """
 
 from __future__ import annotations
@@ -458,7 +455,8 @@ class LaserLikelihood:
         psi = np.asarray(psi, dtype=float)
         value, q, _ = self.laplace(psi, q0, n_iter=n_iter)
         theta, extra = self.split(psi)
-        r = self._laplace_points(psi, q0, n_iter)[-1] if self.outliers else None
+        r, lw = ((self._laplace_points(psi, q0, n_iter)[-1], extra[..., -1]) if self.outliers
+                 else (None, None))
         sig, w, _ = self.noise(extra)
         with np.errstate(invalid="ignore", divide="ignore"):
             x, y = q[..., 0], q[..., 1]
@@ -467,7 +465,7 @@ class LaserLikelihood:
             det = C00 * C11 - C01 * C01
             x = x - (C11 * g0 - C01 * g1) / det            # one more step: the modes
             y = y - (C00 * g1 - C01 * g0) / det
-            grad = grad_terms(self, theta, x, y, sig, w, outlier_resp=r, logit_w=extra[..., -1])
+            grad = grad_terms(self, theta, x, y, sig, w, outlier_resp=r, logit_w=lw)
         grad = np.where(np.isfinite(value)[..., None], grad, np.nan)
         return value, grad
 

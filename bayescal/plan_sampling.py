@@ -24,8 +24,11 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
+from .collapsed import NotConvergedError, NotConvergedWarning, sample_collapsed
 from .floorplan import FloorPlan
 from .parameters import from_identifiable
+from .plan_lsq import plan_map_start
+from .posterior import Posterior
 from .priors import Prior
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
@@ -66,9 +69,6 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         ``log sigma_px`` when inferred; ``approx_points`` is NaN (the plan
         replaces them) and ``plan`` the given plan.
     """
-    from .plan_lsq import plan_map_start
-    from .sampling import NotConvergedError, NotConvergedWarning, sample_collapsed
-
     if not isinstance(plan, FloorPlan):
         raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
     if sigma_scene is not SCENE_REQUIRED:
@@ -107,8 +107,6 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
 
 def _assemble(lik, prior, map_res, run, rng, *, sigma_px):
     """phi draws, walls and points; the Posterior object."""
-    from .posterior import Posterior
-
     psi, diag = run["psi"], run["diagnostics"]
     theta, walls, _ = lik.split(psi)
     phi = prior.sample_phi(theta, rng=rng)

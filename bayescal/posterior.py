@@ -19,6 +19,7 @@ from ._validation import as_pixels, as_points, resolve_rng
 from .diagnostics import ChainDiagnostics
 from .parameters import PARAM_NAMES, SensorParams, to_identifiable
 from .priors import Prior
+from .reconstruction import Reconstruction
 
 __all__ = ["Posterior", "Reconstruction", "load_posterior", "PRIOR_DOMINATED_RATIO",
            "LAPLACE_SD_TOLERANCE"]
@@ -36,40 +37,6 @@ NON_IDENTIFIABLE = ("phi", "alpha_u", "alpha_v")
 _ARRAYS = ("param_samples", "point_samples", "noise_samples", "pixels", "approx_points",
            "tau", "ess", "laplace_cov8", "laplace_cov7", "map_params", "map_points",
            "map_point_covariance")
-
-
-class Reconstruction:
-    """Reconstructed 3D points with uncertainty; unpacks as ``mean, covariance``.
-
-    Attributes
-    ----------
-    mean : ndarray, shape (M, 3)
-        Posterior mean of each point, mm.
-    covariance : ndarray, shape (M, 3, 3)
-        Posterior covariance (parameter uncertainty plus pixel noise), mm^2.
-    samples : ndarray, shape (S, M, 3)
-        The Monte-Carlo draws behind them.
-    level : float
-        Credible level of :attr:`intervals`.
-    intervals : ndarray, shape (M, 3, 2)
-        Equal-tailed per-axis credible intervals, mm.
-    valid : ndarray of bool, shape (M,)
-        False where (almost) every draw missed the cone.
-    """
-
-    def __init__(self, samples, level):
-        self.samples = samples
-        self.level = level
-        self.valid = np.mean(np.isfinite(samples[..., 0]), axis=0) > 0.99
-        s = np.where(np.isfinite(samples), samples, np.nan)
-        self.mean = np.nanmean(s, axis=0)
-        d = s - self.mean
-        self.covariance = np.nanmean(d[..., :, None] * d[..., None, :], axis=0)
-        lo, hi = (1 - level) / 2, (1 + level) / 2
-        self.intervals = np.moveaxis(np.nanquantile(s, [lo, hi], axis=0), 0, -1)
-
-    def __iter__(self):
-        return iter((self.mean, self.covariance))
 
 
 class Posterior:

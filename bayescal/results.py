@@ -46,6 +46,7 @@ from .identifiability import (
     identifiable_to_paper_jacobian,
 )
 from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .reconstruction import LinearReconstruction
 
 __all__ = [
     "IdentifiabilityReport",
@@ -84,24 +85,6 @@ class ConvergenceError(RuntimeError):
     def __init__(self, message, result=None):
         super().__init__(message)
         self.result = result
-
-
-class LinearReconstruction:
-    """Points triangulated with first-order uncertainty; unpacks as ``mean, covariance``.
-
-    Attributes
-    ----------
-    mean : ndarray, shape (M, 3)
-        mm (NaN where the ray misses the cone).
-    covariance : ndarray, shape (M, 3, 3)
-        mm^2.
-    """
-
-    def __init__(self, mean, covariance):
-        self.mean, self.covariance = mean, covariance
-
-    def __iter__(self):
-        return iter((self.mean, self.covariance))
 
 
 def linear_reconstruction(params, cov_identifiable, pixels, sigma_px):

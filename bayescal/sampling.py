@@ -33,181 +33,26 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .diagnostics import ChainDiagnostics, integrated_time
+from .collapsed import (
+    NoiseAtBoundWarning,
+    NotConvergedError,
+    NotConvergedWarning,
+    check_run_options,
+    default_moves,
+    sample_collapsed,
+)
+from .diagnostics import integrated_time
 from .floorplan import FloorPlan
-from .model import NOISE_BOUNDS, LaserLikelihood, draw_points
-from .moves import HMCMove, IndependenceMove
+from .model import NOISE_BOUNDS, LaserLikelihood
 from .parameters import from_identifiable
 from .plan_sampling import SCENE_REQUIRED, sample_plan_posterior
+from .posterior import Posterior
 from .priors import Prior
-from .sampler_steps import (
-    HMC_LEAPFROG,
-    CollapsedTarget,
-    from_sampling,
-    ring_scale,
-    run_until_converged,
-    sampling_jacobian,
-    seeded_sampler,
-    to_sampling,
-    tune_proposal,
-)
+from .sampler_steps import from_sampling, ring_scale, seeded_sampler, to_sampling
 
 __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
            "ring_scale", "to_sampling", "from_sampling"]
-
-#: shares of the HMC and independence moves in the production run (the rest: DEMove)
-HMC_WEIGHT = 0.3
-IMH_WEIGHT = 0.6
-#: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
-HMC_PATH = 1.5
-
-
-
-class NotConvergedWarning(UserWarning):
-    """The chain did not meet its convergence rule (results may be biased)."""
-
-
-class NoiseAtBoundWarning(UserWarning):
-    """An inferred noise level's posterior piles up at its prior's lower bound."""
-
-
-class NotConvergedError(RuntimeError):
-    """The chain did not converge; ``.tau`` holds the autocorrelation times, ``.posterior``
-    the (unconverged) result."""
-
-    def __init__(self, message, tau=None, posterior=None):
-        super().__init__(message)
-        self.tau = tau
-        self.posterior = posterior
-
-
-def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
-                  n_leapfrog=None):
-    """emcee moves used by default.
-
-    With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
-    collapsed target's): :class:`~bayescal.moves.HMCMove` (``HMC_WEIGHT``, mass
-    matrix ``cov^-1``, leapfrog step ``step_size`` in whitened units),
-    :class:`~bayescal.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
-    between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
-    (the rest). Without a gradient: the independence proposal (80 %) and DEMove
-    (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
-    ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
-    distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
-    """
-    import emcee
-
-    if mean is None:
-        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
-    if value_and_grad is None:
-        return [(IndependenceMove(mean, cov, scale=1.1), 0.8),
-                (emcee.moves.DEMove(), 0.2)]
-    n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
-    moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
-              HMC_WEIGHT),
-             (IndependenceMove(mean, cov, scale=1.1), IMH_WEIGHT),
-             (emcee.moves.DEMove(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
-    return [(m, w) for m, w in moves if w > 0]
-
-
-def _moves_text(moves):
-    if moves is None:
-        return "default"
-    return ", ".join(f"{type(m).__name__} {w:.0%}" for m, w in moves)
-
-
-def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
-    """Walker placement and proposal tuning (steps 2-3), in sampling coordinates."""
-    p0 = rng.multivariate_normal(s_map, cov_s, size=n_walkers)
-    lp0 = target(p0)
-    for _ in range(100):
-        bad = ~np.isfinite(lp0)
-        if not bad.any():
-            break
-        p0[bad] = rng.multivariate_normal(s_map, cov_s * 0.01, size=int(bad.sum()))
-        lp0[bad] = target(p0[bad])
-    else:
-        raise RuntimeError("could not place the walkers: the MAP start is outside the support")
-    if n_tune <= 0:
-        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3}
-    return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
-                         gradient=target.has_gradient)
-
-
-def _thin(chain, burn, n_samples):
-    """``n_samples`` states thinned evenly from the kept chain (steps, walkers, d)."""
-    flat = chain[burn:].reshape(-1, chain.shape[-1])
-    if len(flat) == 0:
-        flat = chain[-1]
-    idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
-    return flat[idx]
-
-
-def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
-                     min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
-                     moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None):
-    """Sample the globals ``psi`` with the points integrated out, then draw the points.
-
-    Parameters
-    ----------
-    lik : likelihood
-        Any object of the collapsed-sampler protocol (``n``, ``extra_names``,
-        ``log_prior_extra``, ``laplace``, ``point_log_density``, ``points_3d``).
-    prior : Prior
-        Prior of the paper parameters (theta's prior with phi integrated out).
-    psi_map : array_like, shape (d,)
-        Start: theta (7,) then the extra globals, as ``lik.laplace`` takes them.
-    cov_psi_map : array_like, shape (d, d)
-        Laplace covariance at ``psi_map`` (a rough one will do: it is refitted).
-    q_map : array_like, shape (N, k)
-        Latent point coordinates at the MAP (start of the Laplace steps).
-    rng, n_walkers, min_ess, tau_factor, max_steps, n_samples, moves, progress,
-    n_point_mh, n_iter :
-        As in :func:`sample_posterior`.
-    n_tune : int, optional
-        Steps per tuning round (default 60 with a gradient, else 150).
-
-    Returns
-    -------
-    dict
-        ``psi`` (S, d) samples, ``q`` (S, N, k) point draws, ``diagnostics``
-        (:class:`~bayescal.diagnostics.ChainDiagnostics`), ``imh_acceptance``.
-    """
-    rng = resolve_rng(rng)
-    ndim = len(psi_map)
-    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
-    target = CollapsedTarget(lik, prior, q_map, n_iter)
-    if n_tune is None:                      # HMC mixes fast: short tuning rounds suffice
-        n_tune = 60 if target.has_gradient and moves is None else 150
-    n_tune = int(n_tune)
-    J = sampling_jacobian(psi_map)
-    s_map, cov_s = to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
-    fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
-    p0 = fit["state"]
-    vg = target.value_and_grad if target.has_gradient else None
-    # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
-    n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
-    prod_moves = default_moves(fit["mean"], fit["cov"], value_and_grad=vg,
-                               step_size=fit["step_size"], n_leapfrog=n_leap) \
-        if moves is None else moves
-    sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
-    info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
-                               max_steps=int(max_steps), chunk=100, progress=progress)
-    diag = ChainDiagnostics(
-        names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
-        tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
-        n_walkers=n_walkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
-        converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
-        moves=_moves_text(prod_moves),
-        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
-               "hmc_step_size": fit["step_size"]})
-    psi = from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
-    # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
-                             batch=max(1, 500_000 // max(lik.n, 1)))
-    return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
-
 
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
@@ -288,6 +133,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     >>> post.param_samples.shape[1], post.point_samples.shape[1:]
     (8, (60, 3))
     """
+    check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
+                      max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
+                      n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     if isinstance(approx_points, FloorPlan):          # walls in place of points
         # the floor-plan likelihood has no outlier mixture yet (docs/floorplan.md)
         kw = {k: v for k, v in locals().items()
@@ -298,8 +146,6 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                         "(needed with approximate points)")
     from .simultaneous import calibrate_simultaneous
 
-    if on_unconverged not in ("warn", "raise"):
-        raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
@@ -308,8 +154,6 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     if n_walkers is not None and int(n_walkers) < 2 * ndim:
         raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
                          f"red-blue moves, got {n_walkers}")
-    if int(n_samples) < 1:
-        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init,
                                      outliers=outliers)
@@ -356,8 +200,6 @@ def _map_start(lik, map_res):
 
 def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
     """phi draws and the Posterior object (step 6)."""
-    from .posterior import Posterior
-
     psi, diag = run["psi"], run["diagnostics"]
     phi = prior.sample_phi(psi[:, :7], rng=rng)
     return Posterior(

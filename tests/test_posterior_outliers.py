@@ -64,3 +64,29 @@ def test_mixture_costs_nothing_on_clean_data():
     ratio = th[True].std(axis=0) / sd
     assert np.all(np.abs(dmean) < 0.1), dmean
     assert np.all(np.abs(ratio - 1) < 0.05), ratio
+
+
+@pytest.mark.parametrize("outliers", [False, True])
+def test_collapsed_gradient_matches_finite_differences_with_the_mixture(outliers):
+    """The HMC move's gradient: with the mixture each point is weighted by its outlier
+    probability and logit w gets sum_i (r_i - w); one gross error in the data. Central
+    differences at h ~ 1e-6 are accurate to ~1e-6 relative here; 1e-3 leaves room."""
+    from bayescal.model import LaserLikelihood
+
+    ds, sig = _room(100)
+    approx = ds.approx_points.copy()
+    approx[5, 0] += 3000.0
+    lik = LaserLikelihood(ds.pixels, approx, sigma_px=None, sigma_scene=sig, outliers=outliers)
+    lik.set_reference_noise(sigma_px=0.5)
+    psi = np.concatenate([ds.params.to_identifiable(), [np.log(0.5)],
+                          [np.log(0.02 / 0.98)] if outliers else []])
+    q0 = ds.points[:, :2]
+    value, grad = lik.grad_log_marginal(psi, q0, n_iter=4)
+    np.testing.assert_allclose(value, lik.laplace(psi, q0, n_iter=4)[0])
+    fd = np.empty_like(grad)
+    for k in range(len(psi)):
+        e = np.zeros_like(psi)
+        e[k] = 1e-6 * max(1.0, abs(psi[k]))
+        fd[k] = (lik.laplace(psi + e, q0, n_iter=6)[0]
+                 - lik.laplace(psi - e, q0, n_iter=6)[0]) / (2 * e[k])
+    np.testing.assert_allclose(grad, fd, rtol=1e-3)

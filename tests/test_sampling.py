@@ -96,8 +96,24 @@ def test_too_few_walkers_and_bad_options_raise():
         _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=19)
     with pytest.raises(ValueError, match="on_unconverged must be 'warn' or 'raise'"):
         _sample(ds, on_unconverged="ignore")
-    with pytest.raises(ValueError, match="n_samples must be a positive integer"):
+    with pytest.raises(ValueError, match="n_samples must be an integer >= 1, got 0"):
         _sample(ds, n_samples=0)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("max_steps", 0, r"max_steps must be an integer >= 1, got 0"),
+    ("max_steps", 10.5, r"max_steps must be an integer >= 1, got 10.5"),
+    ("min_ess", -1, r"min_ess must be a finite positive number, got -1"),
+    ("tau_factor", float("nan"), r"tau_factor must be a finite positive number, got nan"),
+    ("n_walkers", "x", r"n_walkers must be an integer >= 2, got 'x'"),
+    ("n_iter", 0, r"n_iter must be an integer >= 1, got 0"),
+    ("n_tune", -5, r"n_tune must be an integer >= 0, got -5"),
+])
+def test_bad_run_options_fail_before_any_work(option, value, message):
+    """Checked before the MAP, so a typo costs nothing (pixels are not even looked at)."""
+    with pytest.raises(ValueError, match=message):
+        bc.sample_posterior(np.zeros((5, 2)), np.ones((5, 3)), sigma_px=1.0, sigma_scene=1.0,
+                            **{option: value})
 
 
 def test_unconverged_chain_raises_with_tau():
