@@ -93,7 +93,9 @@ def _residual_figure(result, info, pixels):
         z = posterior_residuals(result, n_draws=100)
         return plot_pixel_residuals(pixels, z, title="Pixel residuals under 100 posterior draws "
                                     "(each point through its own draw)")
-    if result.points is None or result.method == "sequential":
+    if result.method == "sequential":
+        return _sequential_figure(result)
+    if result.points is None:
         return None
     spx = _sigma_used(result, info)
     ssc = result.extras.get("sigma_scene")
@@ -105,6 +107,17 @@ def _residual_figure(result, info, pixels):
     else:
         how = f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})"
     return plot_pixel_residuals(pixels, z, raw=raw, title=f"Least-squares pixel residuals, {how}")
+
+
+def _sequential_figure(result):
+    """Both stages' standardized residuals, or None for a failed run or an old file."""
+    from .plotting import plot_sequential_residuals
+    from .sequential import sequential_residuals
+
+    try:
+        return plot_sequential_residuals(sequential_residuals(result))
+    except (TypeError, ValueError):
+        return None
 
 
 def _check_figures(out, result, info, *, recon, truth, check):
@@ -141,7 +154,9 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
                               out / "image.png"))}
     fig = _residual_figure(result, info, data.pixels)
     if fig is not None:
-        figs["residuals"] = ("Standardized pixel residuals", savefig(fig, out / "residuals.png"))
+        what = ("Standardized residuals of both stages" if result.method == "sequential"
+                else "Standardized pixel residuals")
+        figs["residuals"] = (what, savefig(fig, out / "residuals.png"))
     if recon is not None:
         tp = None if truth is None else np.asarray(truth.get("points"), float)
         walls = None if truth is None or truth.get("walls") is None else np.asarray(

@@ -255,6 +255,8 @@ def test_calibrate_sequential_end_to_end(seq_run):
     md = _check_report(folder)
     assert "Accuracy against the simulation truth" in md
     assert "mean 3D error against the truth" in r.stdout
+    # both stages' residuals are plotted (they survive the result file)
+    assert (folder / "residuals.png").is_file() and "residuals of both stages" in md
     pts = bayescal.io.read_table(folder / "points.csv", required=("x", "y", "z", "sd_x"))
     assert len(pts) == N_POINTS
 

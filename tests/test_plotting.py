@@ -6,6 +6,7 @@ import pytest
 from matplotlib.figure import Figure
 
 import bayescal as bc
+import bayescal.plotting
 from bayescal.plotting import plot_image, plot_room, savefig
 
 
@@ -127,3 +128,14 @@ def test_plot_floor_plan_draws_every_layer(rng):
             "true points"} <= labels
     assert len(ax.patches) == 10                         # one ellipse in every 4 points
     plt.close(fig)
+
+
+def test_plot_sequential_residuals_draws_both_stages():
+    from bayescal.sequential import SequentialResiduals
+
+    rng = np.random.default_rng(0)
+    res = SequentialResiduals(grid_px=rng.normal(size=(50, 2)), grid_z=rng.normal(size=(50, 2)),
+                              laser_mm=rng.normal(size=40), laser_z=rng.normal(size=40))
+    fig = bc.plotting.plot_sequential_residuals(res)
+    titles = [ax.get_title() for ax in fig.axes]
+    assert any("Stage 1" in t for t in titles) and any("Stage 2" in t for t in titles)

@@ -14,7 +14,8 @@ from .diagnostics import (
     radial_tangential_sd,
 )
 from .plan import plot_floor_plan, wall_draws
+from .sequential import plot_sequential_residuals
 
 __all__ = ["plot_image", "plot_room", "plot_corner", "plot_residuals", "plot_reconstruction",
            "plot_pixel_residuals", "plot_reconstruction_ellipses", "radial_tangential_sd",
-           "savefig", "UNITS", "plot_floor_plan", "wall_draws"]
+           "savefig", "UNITS", "plot_floor_plan", "wall_draws", "plot_sequential_residuals"]
