@@ -203,6 +203,11 @@ class FloorPlan:
         return cls(seg, distance_sd=distance_sd, angle_sd=angle_sd)
 
     @property
+    def walls(self):
+        """The wall segments as given, shape (W, 2, 2), mm (same as :attr:`segments`)."""
+        return self.segments
+
+    @property
     def param_nominal(self):
         return np.concatenate([s.nominal for s in self.surfaces])
 

@@ -147,3 +147,9 @@ def test_simulate_room_floor_plan_keeps_streams_and_matches_wall_errors():
     again = bc.simulate_room(range_mm=1000, sigma_px=0.5, approx_error=0.05,
                              approx_model="wall", rng=3)
     np.testing.assert_array_equal(again.floor_plan.segments, plan.segments)
+
+
+def test_walls_property_returns_the_segments_as_given():
+    walls = bc.room_walls(1000)
+    plan = bc.FloorPlan(walls, distance_sd=20.0, angle_sd=0.01)
+    np.testing.assert_array_equal(plan.walls, walls)
