@@ -154,7 +154,8 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
                               out / "image.png"))}
     fig = _residual_figure(result, info, data.pixels)
     if fig is not None:
-        what = ("Standardized residuals of both stages" if result.method == "sequential"
+        what = ("Standardized residuals of both stages"
+                if getattr(result, "method", None) == "sequential"
                 else "Standardized pixel residuals")
         figs["residuals"] = (what, savefig(fig, out / "residuals.png"))
     if recon is not None:
