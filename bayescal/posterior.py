@@ -53,11 +53,11 @@ class Posterior:
     noise_samples : ndarray, shape (S, K)
         Inferred ``log sigma_px`` / ``log kappa`` (K = 0 when both were given).
     tau, ess : ndarray, shape (7 + K,)
-        Integrated autocorrelation time (steps) and effective sample size of
-        the sampled coordinates ``(xi, R_u, R_v, u0, v0, h, beta)`` (ring radii
-        in place of gamma, see :func:`bayescal.sampling.to_sampling`), then noise.
+        Integrated autocorrelation time (steps) and honest ensemble effective
+        sample size of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``, then of each
+        extra global (see :attr:`diagnostics`).
     converged : bool
-        Chain longer than 50 tau after burn-in.
+        The chain met its convergence rule (``diagnostics.rule``).
     """
 
     def __init__(self, *, param_samples, point_samples, noise_samples, noise_names, pixels,
@@ -248,10 +248,15 @@ class Posterior:
         status = "converged" if self.converged else "NOT CONVERGED"
         lines.append(f"chain: {self.n_walkers} walkers x {self.n_steps} steps, burn-in "
                      f"{self.burn}, max tau {np.max(self.tau):.1f}, min ESS {np.min(self.ess):.0f},"
-                     f" acceptance {self.acceptance:.2f}: {status} (rule: length > 50 tau)")
+                     f" acceptance {self.acceptance:.2f}: {status} (rule: {self._rule()})")
         lines.append(f"points: {self.point_samples.shape[1]} laser points, {self.n_samples} "
                      f"joint samples (IMH correction acceptance {self.imh_acceptance:.2f})")
         return "\n".join(lines)
+
+    def _rule(self):
+        """The convergence rule the chain was judged by (older files: the default rule)."""
+        d = self.diagnostics
+        return d.rule if d is not None else "kept steps > 50 tau"
 
     def to_dict(self):
         """Plain-data summary: ``method``, ``params`` (means), ``covariance`` (8x8),

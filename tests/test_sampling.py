@@ -65,6 +65,9 @@ def test_output_shapes_and_convergence_rule():
     assert post.converged
     assert post.n_steps - post.burn > 50 * np.max(post.tau)
     assert np.min(post.ess) >= 200
+    # and the summary states the rule that was used, not a fixed text
+    assert post.diagnostics.rule in post.summary_text()
+    assert "ESS >= 200" in post.summary_text()
     # every point sample lies on its sample's cone
     a = post.param_samples
     rho = np.hypot(post.point_samples[..., 0], post.point_samples[..., 1])
