@@ -11,6 +11,8 @@ points) and :func:`bayescal.plan_sampling.sample_plan_posterior` (floor plan).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ._validation import resolve_rng
@@ -28,8 +30,8 @@ from .sampler_steps import (
     tune_proposal,
 )
 
-__all__ = ["sample_collapsed", "check_run_options", "default_moves", "NotConvergedWarning",
-           "NotConvergedError", "NoiseAtBoundWarning"]
+__all__ = ["sample_collapsed", "check_run_options", "report_unconverged", "default_moves",
+           "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning"]
 
 #: shares of the HMC and independence moves in the production run (the rest: DEMove)
 HMC_WEIGHT = 0.3
@@ -147,6 +149,23 @@ def check_run_options(*, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=
             raise ValueError(f"{name} must be a finite positive number, got {v!r}")
     if on_unconverged not in ("warn", "raise"):
         raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
+
+
+def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stacklevel):
+    """Warn (or raise :class:`NotConvergedError`) when the chain missed its rule.
+
+    ``what`` names the chain in the message ("the chain", "the floor-plan chain");
+    the numbers come from ``diag``, the :class:`~bayescal.diagnostics.ChainDiagnostics`.
+    """
+    if diag.converged:
+        return
+    msg = (f"{what} did not converge within max_steps={max_steps}: it has "
+           f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
+           f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
+           f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
+    if on_unconverged == "raise":
+        raise NotConvergedError(msg, tau=diag.tau, posterior=posterior)
+    warnings.warn(msg, NotConvergedWarning, stacklevel=stacklevel + 1)
 
 
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,

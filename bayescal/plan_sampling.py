@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .collapsed import NotConvergedError, NotConvergedWarning, sample_collapsed
+from .collapsed import report_unconverged, sample_collapsed
 from .floorplan import FloorPlan
 from .parameters import from_identifiable
 from .plan_lsq import plan_map_start
@@ -93,15 +93,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            n_point_mh=n_point_mh, n_iter=n_iter,
                            n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
-    diag = run["diagnostics"]
-    if not diag.converged:
-        msg = (f"the floor-plan chain did not converge within max_steps={max_steps}: it has "
-               f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
-               f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
-               f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
-        if on_unconverged == "raise":
-            raise NotConvergedError(msg, tau=diag.tau, posterior=post)
-        warnings.warn(msg, NotConvergedWarning, stacklevel=3)
+    report_unconverged(run["diagnostics"], post, what="the floor-plan chain",
+                       max_steps=max_steps, on_unconverged=on_unconverged, stacklevel=3)
     return post
 
 

@@ -10,6 +10,7 @@ object; arrays round-trip bit for bit.
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 
 import numpy as np
@@ -428,14 +429,19 @@ class Posterior:
         arrays = {k: getattr(self, k) for k in _ARRAYS}
         if self.sigma_scene is not None:
             arrays["sigma_scene"] = np.asarray(self.sigma_scene, float)
-        if self.wall_samples is not None:
-            arrays["wall_samples"] = self.wall_samples
-        if self.outlier_prob is not None:
-            arrays["outlier_prob"] = self.outlier_prob
+        for name in ("wall_samples", "outlier_prob"):        # optional arrays
+            if getattr(self, name) is not None:
+                arrays[name] = getattr(self, name)
         if self.plan is not None:
             arrays.update({"plan_" + k: v for k, v in self.plan.to_arrays().items()})
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, meta_json=np.array(json.dumps(meta)), **arrays)
+        tmp = path.with_name(path.name + ".tmp")       # atomic: never a half-written file
+        try:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, meta_json=np.array(json.dumps(meta)), **arrays)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
 

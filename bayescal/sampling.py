@@ -39,6 +39,7 @@ from .collapsed import (
     NotConvergedWarning,
     check_run_options,
     default_moves,
+    report_unconverged,
     sample_collapsed,
 )
 from .diagnostics import integrated_time
@@ -164,15 +165,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
     _check_noise_bounds(post)
-    diag = run["diagnostics"]
-    if not diag.converged:
-        msg = (f"the chain did not converge within max_steps={max_steps}: it has "
-               f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
-               f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
-               f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
-        if on_unconverged == "raise":
-            raise NotConvergedError(msg, tau=diag.tau, posterior=post)
-        warnings.warn(msg, NotConvergedWarning, stacklevel=2)
+    report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
+                       on_unconverged=on_unconverged, stacklevel=2)
     return post
 
 

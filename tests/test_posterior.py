@@ -198,3 +198,20 @@ def test_corner_returns_a_figure(post, room):
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+def test_save_is_atomic_and_leaves_no_temporary_file(post, tmp_path, monkeypatch):
+    """An interrupted save (numpy failing mid-write) leaves the previous file intact and no
+    temporary file behind."""
+    path = post.save(tmp_path / "p.npz")
+    before = path.read_bytes()
+
+    def broken(f, **arrays):
+        f.write(b"half a file")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", broken)
+    with pytest.raises(KeyboardInterrupt):
+        post.save(path, overwrite=True)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.npz"]
