@@ -31,6 +31,7 @@ from .parameters import (
 from .planmodel import PlanLikelihood
 from .priors import Prior
 from .results import CalibrationResult, ConvergenceError, identifiability_report
+from .schur import damped_step
 
 __all__ = ["calibrate_plan", "plan_map_start", "PlanMapSolution"]
 
@@ -129,22 +130,15 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
                          "domain (non-finite residuals); give a better init or plan")
     n_done = 0
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
-        improved = False
-        for _ in range(30):
-            try:
-                dg, dt = _step(ne, lam, free)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            new_cost = _cost(lik, prior, g + dg, t + dt, sig)
-            nfev += 1
-            if new_cost < cost:
-                improved = True
-                break
-            lam *= 4.0
-        if not improved:
+        # the two closures are called within this iteration only (so B023 does not apply)
+        step, new_cost, lam, n = damped_step(
+            lambda lam: _step(ne, lam, free),  # noqa: B023
+            lambda st: _cost(lik, prior, g + st[0], t + st[1], sig), cost, lam)  # noqa: B023
+        nfev += n
+        if step is None:
             converged, message = True, "no further decrease of the cost (at a minimum)"
             break
+        dg, dt = step
         small = (np.all(np.abs(dg) <= xtol * (np.abs(g) + xtol))
                  and np.all(np.abs(dt) <= xtol))
         g, t = g + dg, t + dt

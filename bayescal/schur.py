@@ -13,7 +13,7 @@ import numpy as np
 
 from .parameters import from_identifiable, identifiable_jacobian
 
-__all__ = ["solve_map", "MapSolution"]
+__all__ = ["solve_map", "MapSolution", "damped_step"]
 
 
 class MapSolution:
@@ -127,22 +127,16 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
                          "domain (non-finite residuals); give a better init")
     n_done = 0
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
-        improved = False
-        for _ in range(30):
-            try:
-                dt, dq = _schur_step(A, B, C, gt, gq, lam, u)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            new_cost = _cost(lik, prior, theta + dt, q + dq, sig, w_scene, u)
-            nfev += 1
-            if new_cost < cost:
-                improved = True
-                break
-            lam *= 4.0
-        if not improved:
+        # the two closures are called within this iteration only (so B023 does not apply)
+        step, new_cost, lam, n = damped_step(
+            lambda lam: _schur_step(A, B, C, gt, gq, lam, u),  # noqa: B023
+            lambda st: _cost(lik, prior, theta + st[0], q + st[1], sig, w_scene, u),  # noqa: B023
+            cost, lam)
+        nfev += n
+        if step is None:
             converged, message = True, "no further decrease of the cost (at a minimum)"
             break
+        dt, dq = step
         small_step = (np.all(np.abs(dt) <= xtol * (np.abs(theta) + xtol))
                       and np.all(np.abs(dq) <= xtol * (np.abs(q) + 1.0)))
         theta, q = theta + dt, q + dq
@@ -165,6 +159,43 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
                        n_iter=n_done, converged=converged, message=message, phi=float(theta[7]),
                        info_data=info_data, weights=u,
                        cov_points=_point_covariances(theta[:7], q, Cinv, B[:, :7], cov_t, u))
+
+
+def damped_step(propose, cost_of, cost, lam, *, max_tries=30):
+    """Levenberg-Marquardt's inner loop: raise the damping until a step lowers the cost.
+
+    Parameters
+    ----------
+    propose : callable
+        ``propose(lam)`` -> the step at damping ``lam`` (may raise LinAlgError).
+    cost_of : callable
+        ``cost_of(step)`` -> the cost after the step.
+    cost : float
+        The current cost.
+    lam : float
+        The current damping.
+
+    Returns
+    -------
+    step : object or None
+        The accepted step, or None when no damping up to ``max_tries`` raises helped.
+    new_cost, lam : float
+    nfev : int
+        Cost evaluations used.
+    """
+    nfev = 0
+    for _ in range(max_tries):
+        try:
+            step = propose(lam)
+        except np.linalg.LinAlgError:
+            lam *= 10
+            continue
+        new_cost = cost_of(step)
+        nfev += 1
+        if new_cost < cost:
+            return step, new_cost, lam, nfev
+        lam *= 4.0
+    return None, cost, lam, nfev
 
 
 def _point_covariances(theta, q, Cinv, B, cov_t, u):
