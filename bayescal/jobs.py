@@ -343,7 +343,7 @@ class ReportJob:
 
 @dataclass(frozen=True)
 class DemoJob:
-    """The main job end to end: simulate the large room, calibrate three ways, report."""
+    """The main job end to end: simulate the large room, calibrate four ways, report."""
 
     n_points: int
     max_steps: int | None

@@ -453,13 +453,12 @@ class LaserLikelihood:
             NaN where the value is ``-inf``.
         """
         psi = np.asarray(psi, dtype=float)
-        value, q, _ = self.laplace(psi, q0, n_iter=n_iter)
+        per_point, x, y, *_, r = self._laplace_points(psi, q0, n_iter)   # one pass: laplace's
+        value = np.where(np.isfinite(total := per_point.sum(axis=-1)), total, -np.inf)
         theta, extra = self.split(psi)
-        r, lw = ((self._laplace_points(psi, q0, n_iter)[-1], extra[..., -1]) if self.outliers
-                 else (None, None))
+        lw = extra[..., -1] if self.outliers else None
         sig, w, _ = self.noise(extra)
         with np.errstate(invalid="ignore", divide="ignore"):
-            x, y = q[..., 0], q[..., 1]
             _, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
             C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
             det = C00 * C11 - C01 * C01
