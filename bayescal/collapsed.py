@@ -22,11 +22,10 @@ from .moves import HMCMove, IndependenceMove
 from .sampler_steps import (
     HMC_LEAPFROG,
     CollapsedTarget,
-    from_sampling,
+    Coordinates,
+    imh_df,
     run_until_converged,
-    sampling_jacobian,
     seeded_sampler,
-    to_sampling,
     tune_proposal,
 )
 
@@ -78,12 +77,12 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     if mean is None:
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     if value_and_grad is None:
-        return [(IndependenceMove(mean, cov, scale=1.1), 0.8),
+        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
                 (emcee.moves.DEMove(), 0.2)]
     n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
     moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
               HMC_WEIGHT),
-             (IndependenceMove(mean, cov, scale=1.1), IMH_WEIGHT),
+             (IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), IMH_WEIGHT),
              (emcee.moves.DEMove(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
     return [(m, w) for m, w in moves if w > 0]
 
@@ -204,12 +203,14 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     rng = resolve_rng(rng)
     ndim = len(psi_map)
     n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
-    target = CollapsedTarget(lik, prior, q_map, n_iter)
+    # the ring radius at the points' median range (docs/bayes.md section 3)
+    coords = Coordinates(getattr(lik, "reference_range", None))
+    target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
     if n_tune is None:                      # HMC mixes fast: short tuning rounds suffice
         n_tune = 60 if target.has_gradient and moves is None else 150
     n_tune = int(n_tune)
-    J = sampling_jacobian(psi_map)
-    s_map, cov_s = to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
+    J = coords.jacobian(psi_map)
+    s_map, cov_s = coords.to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
     p0 = fit["state"]
     vg = target.value_and_grad if target.has_gradient else None
@@ -220,7 +221,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
-                               max_steps=int(max_steps), chunk=100, progress=progress)
+                               max_steps=int(max_steps), chunk=100, progress=progress,
+                               coords=coords)
     diag = ChainDiagnostics(
         names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
         tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
@@ -229,7 +231,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         moves=_moves_text(prod_moves),
         extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
                "hmc_step_size": fit["step_size"]})
-    psi = from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
+    psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
     # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
     q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
                              batch=max(1, 500_000 // max(lik.n, 1)))

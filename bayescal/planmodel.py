@@ -97,6 +97,7 @@ class PlanLikelihood:
         self._prior_mu = plan.param_nominal
         self.reference_range = None
         self._prior_sd = plan.param_sd
+        self.primary, self.near = None, None
 
     def assign(self, params, walls=None):
         """(Re)choose each point's candidate walls from its pixel azimuth under ``params``.
@@ -111,6 +112,30 @@ class PlanLikelihood:
         j = np.argmin(np.abs(wrap_angle(az[:, None] - corners[None, :])), axis=1)
         self.corner = j
         self.wall_pair = np.stack([j, (j + 1) % self.n_walls], axis=1)
+        self.primary, self.near = None, None            # both pieces for every point
+
+    def restrict_pieces(self, psi, *, log_tol=-40.0):
+        """Integrate only the wall a point is on, except for points near a corner.
+
+        A point far from its corner has, on the other wall, a piece whose share of
+        ``p(pixel_i | psi)`` is below ``exp(log_tol)`` at every ``psi`` (..., d) given
+        (draws spanning the posterior well beyond its spread); :meth:`laplace` then
+        skips that piece (a relative error below ``exp(log_tol)`` in the point's
+        likelihood), which halves the sampler's cost. Points whose other piece
+        matters anywhere in ``psi`` keep both.
+
+        Sets ``primary`` (N,) of 0/1 (the dominant piece) and ``near`` (indices of the
+        points that keep both); returns the number of such points.
+        """
+        self.primary, self.near = None, None
+        logm = self._pieces(np.atleast_2d(psi), n_iter=2)[0]
+        share = logm[1] - logm[0]                                  # (S, N)
+        primary = (np.nanmedian(share, axis=0) > 0).astype(int)
+        other = np.where(primary == 1, -share, share)
+        other = np.where(np.isnan(other), -np.inf, other)     # psi outside the model's domain
+        near = np.flatnonzero(np.max(other, axis=0) > log_tol)
+        self.primary, self.near = primary, near
+        return len(near)
 
     def set_reference_noise(self, *, sigma_px=None):
         """Pixel noise at which the Jeffreys prior is evaluated (inferred noise only)."""
@@ -197,7 +222,7 @@ class PlanLikelihood:
         return (gu * mx + u0, gv * my + v0, gu * (dx - mx * dD) * iD,
                 gv * (dy - my * dD) * iD)
 
-    def _fit_piece(self, theta, t, d, ca, sa, n_iter, h=1e-5):
+    def _fit_piece(self, theta, t, d, ca, sa, n_iter, h=1e-5, sel=slice(None)):
         """Gauss-Newton on each point's azimuth on one wall (unit noise).
 
         Returns ``rr*`` (squared residual at the mode), ``t*``, ``C = J^T J`` and
@@ -205,7 +230,7 @@ class PlanLikelihood:
         a forward difference of step ``h`` rad): Gauss-Newton's ``C`` alone left
         a 0.003-nat error per point, the full Hessian's Laplace step ~1e-4.
         """
-        pu, pv = self.pixels[:, 0], self.pixels[:, 1]
+        pu, pv = self.pixels[sel, 0], self.pixels[sel, 1]
         for it in range(n_iter + 1):
             u, v, du, dv = self._pixel_terms(theta, t, d, ca, sa)
             ru, rv = u - pu, v - pv
@@ -253,29 +278,59 @@ class PlanLikelihood:
 
     def laplace_per_point(self, psi, *, n_iter=2):
         """Per-point terms of :meth:`laplace`: ``log p(pixels_i | psi)`` (..., N), q, C."""
-        theta, walls, sig = self.split(psi)
-        dd, aa, c = self._pair_walls(walls)
-        ca, sa = (f(walls[..., 1])[..., self.wall_pair] for f in (np.cos, np.sin))
-        t0 = self._start(theta)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv_s2 = (1.0 / sig**2)[..., None]
-            logm, ts, Cs = [], [], []
-            for s in (0, 1):
-                rr, ts_, C, lhc = self._fit_piece(theta, t0, dd[..., s], ca[..., s], sa[..., s],
-                                                  n_iter)
-                side = wrap_angle(ts_ - c) * (1 if s else -1)        # > 0 inside the piece
-                lm = (-0.5 * rr * inv_s2 - 0.5 * lhc
-                      + log_ndtr(side * np.sqrt(C * np.exp(lhc) * inv_s2)))
-                logm.append(np.where(np.isfinite(lm), lm, -np.inf))
-                ts.append(ts_)
-                Cs.append(C * inv_s2)
+        _, _, sig = self.split(psi)
+        logm, ts, Cs = self._pieces(psi, n_iter=n_iter)
+        with np.errstate(invalid="ignore"):
             m = np.logaddexp(logm[0], logm[1])
-            # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
-            per_point = m - np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
+        # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
+        per_point = m - np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
         pick = logm[1] > logm[0]
         q = np.where(pick, ts[1], ts[0])[..., None]
         C = np.where(pick, Cs[1], Cs[0])[..., None, None]
         return per_point, q, C
+
+    def _pieces(self, psi, *, n_iter):
+        """Each point's two truncated Laplace pieces: log masses, modes, precisions.
+
+        Each is a pair (piece on wall ``wall_pair[:, 0]``, on ``wall_pair[:, 1]``) of
+        arrays (..., N). After :meth:`restrict_pieces`, the non-primary piece is
+        computed for the ``near`` points only (``-inf`` mass elsewhere).
+        """
+        theta, walls, sig = self.split(psi)
+        dd, aa, c = self._pair_walls(walls)
+        ca, sa = (f(walls[..., 1])[..., self.wall_pair] for f in (np.cos, np.sin))
+        t0 = self._start(theta)
+        inv_s2 = (1.0 / sig**2)[..., None]
+        if self.primary is None:
+            return self._piece_pair(theta, t0, dd, ca, sa, c, inv_s2, n_iter)
+        idx = np.arange(self.n)
+        p, near = self.primary, self.near
+        out = self._piece(theta, t0, dd[..., idx, p], ca[..., idx, p], sa[..., idx, p], c,
+                          inv_s2, n_iter, sign=2 * p - 1, sel=slice(None))
+        q = 1 - p[near]
+        other = self._piece(theta, t0[..., near], dd[..., near, q], ca[..., near, q],
+                            sa[..., near, q], c[..., near], inv_s2, n_iter, sign=2 * q - 1,
+                            sel=near)
+        full = [np.full_like(out[0], -np.inf), np.full_like(out[0], np.nan),
+                np.full_like(out[0], np.nan)]
+        for f, o in zip(full, other, strict=True):
+            f[..., near] = o
+        return tuple((np.where(p == 0, a, b), np.where(p == 0, b, a))
+                     for a, b in zip(out, full, strict=True))
+
+    def _piece_pair(self, theta, t0, dd, ca, sa, c, inv_s2, n_iter):
+        both = [self._piece(theta, t0, dd[..., s], ca[..., s], sa[..., s], c, inv_s2, n_iter,
+                            sign=2 * s - 1, sel=slice(None)) for s in (0, 1)]
+        return tuple(zip(*both, strict=True))
+
+    def _piece(self, theta, t0, d, ca, sa, c, inv_s2, n_iter, *, sign, sel):
+        """One truncated Laplace piece per point (pixels ``sel``): log mass, mode, precision."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rr, ts_, C, lhc = self._fit_piece(theta, t0, d, ca, sa, n_iter, sel=sel)
+            side = wrap_angle(ts_ - c) * sign                       # > 0 inside the piece
+            lm = (-0.5 * rr * inv_s2 - 0.5 * lhc
+                  + log_ndtr(side * np.sqrt(C * np.exp(lhc) * inv_s2)))
+        return np.where(np.isfinite(lm), lm, -np.inf), ts_, C * inv_s2
 
     def point_log_density(self, psi, q):
         """Exact per-point log density of the azimuths ``q`` (..., N, 1) given ``psi`` (..., N).

@@ -159,6 +159,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                                      sigma_scene=sigma_scene, prior=prior, init=init,
                                      outliers=outliers)
     psi_map, cov_map, q_map = _map_start(lik, map_res)
+    # the sampler's ring radius is taken at the points' median range (docs/bayes.md sec. 3)
+    lik.reference_range = float(np.median(np.hypot(map_res.points[:, 0], map_res.points[:, 1])))
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,

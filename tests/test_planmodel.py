@@ -284,3 +284,23 @@ def test_plan_inconsistent_with_the_pixels_raises():
     assert res.extras["check"]["worst"][0] == "d_2"
     # the true plan passes on the same pixels
     assert bc.calibrate_simultaneous(ds.pixels, true_plan, sigma_px=0.5).converged
+
+
+@pytest.mark.parametrize("range_mm", [1000.0, 5000.0])
+def test_restricted_pieces_give_the_same_likelihood(range_mm):
+    """After plan_map_start, points far from a corner integrate their own wall only: the
+    log likelihood, modes and precisions equal those with both pieces at walkers spread
+    2x the Laplace covariance (the skipped pieces' shares are below e^-40)."""
+    ds = bc.simulate_room(range_mm=range_mm, n_points=580, sigma_px=0.5, approx_error=0.05,
+                          approx_model="wall", rng=1)
+    psi, cov, _, res = plan_map_start(ds.pixels, ds.floor_plan, sigma_px=0.5)
+    lik = res.extras["likelihood"]
+    assert lik.near is not None and 0 < len(lik.near) < lik.n
+    P = psi + 2.0 * np.random.default_rng(2).standard_normal((30, len(psi))) \
+        @ np.linalg.cholesky(cov).T
+    restricted = lik.laplace(P, n_iter=1)
+    lik.primary, lik.near = None, None
+    both = lik.laplace(P, n_iter=1)
+    np.testing.assert_allclose(restricted[0], both[0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(restricted[1], both[1], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(restricted[2], both[2], rtol=1e-12)

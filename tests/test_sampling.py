@@ -233,18 +233,36 @@ def test_collapsed_gradient_matches_finite_differences(noise):
     assert np.all(np.abs(g - fd) < tol * scale), (g - fd) / scale
 
 
-def test_sampling_coordinates_round_trip_and_jacobian():
-    from bayescal.sampler_steps import (
-        from_sampling,
-        log_jacobian,
-        sampling_jacobian,
-        to_sampling,
-    )
+@pytest.mark.parametrize("rho_ref", [np.inf, 850.0, 5000.0])
+def test_sampling_coordinates_round_trip_and_jacobian(rho_ref):
+    from bayescal.sampler_steps import Coordinates
 
+    c = Coordinates(rho_ref)
     psi = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
-    np.testing.assert_allclose(from_sampling(to_sampling(psi)), psi, rtol=1e-12)
-    J = sampling_jacobian(psi)                                  # d s / d psi
-    np.testing.assert_allclose(log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+    np.testing.assert_allclose(c.from_sampling(c.to_sampling(psi)), psi, rtol=1e-12)
+    J = c.jacobian(psi)                                         # d s / d psi
+    np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+
+
+def test_finite_range_ring_radius_is_the_pixel_radius_at_that_range():
+    """R = gamma * ring_scale(theta, rho) is the distance from the principal point of the
+    pixel of a laser point at horizontal range rho (checked with the camera model)."""
+    from bayescal.sampler_steps import ring_scale
+
+    p = bc.SensorParams.paper()
+    th = p.to_identifiable()
+    for rho in (600.0, 2000.0):
+        z = rho / np.tan(th[6]) - th[5]
+        uv = bc.project(p, np.array([[rho, 0.0, z]]))[0]
+        np.testing.assert_allclose(uv[0] - th[3], th[1] * ring_scale(th, rho), rtol=1e-10)
+    assert ring_scale(th, 1e12) == pytest.approx(ring_scale(th), rel=1e-8)
+
+
+def test_coordinates_reject_a_bad_range():
+    from bayescal.sampler_steps import Coordinates
+
+    with pytest.raises(ValueError, match="rho_ref"):
+        Coordinates(-5.0)
 
 
 class _NoGradient:
