@@ -23,14 +23,17 @@ from .sampler_steps import (
     HMC_LEAPFROG,
     CollapsedTarget,
     Coordinates,
+    de_move,
+    default_walkers,
     imh_df,
+    min_walkers,
     run_until_converged,
     seeded_sampler,
     tune_proposal,
 )
 
-__all__ = ["sample_collapsed", "check_run_options", "report_unconverged", "default_moves",
-           "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning"]
+__all__ = ["sample_collapsed", "check_run_options", "check_walkers", "report_unconverged",
+           "default_moves", "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning"]
 
 #: shares of the HMC and independence moves in the production run (the rest: DEMove)
 HMC_WEIGHT = 0.3
@@ -78,12 +81,12 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     if value_and_grad is None:
         return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
-                (emcee.moves.DEMove(), 0.2)]
+                (de_move(), 0.2)]
     n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
     moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
               HMC_WEIGHT),
              (IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), IMH_WEIGHT),
-             (emcee.moves.DEMove(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
+             (de_move(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
     return [(m, w) for m, w in moves if w > 0]
 
 
@@ -150,6 +153,13 @@ def check_run_options(*, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=
         raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
 
 
+def check_walkers(n_walkers, ndim):
+    """Raise ``ValueError`` unless ``n_walkers`` is None or at least ``ndim + 2``."""
+    if n_walkers is not None and int(n_walkers) < min_walkers(ndim):
+        raise ValueError(f"n_walkers must be at least ndim + 2 = {min_walkers(ndim)} (the "
+                         f"walkers must span the {ndim} sampled coordinates), got {n_walkers}")
+
+
 def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stacklevel):
     """Warn (or raise :class:`NotConvergedError`) when the chain missed its rule.
 
@@ -202,7 +212,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
                       n_iter=n_iter, n_tune=n_tune)
     rng = resolve_rng(rng)
     ndim = len(psi_map)
-    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
+    n_walkers = default_walkers(ndim) if n_walkers is None else int(n_walkers)
     # the ring radius at the points' median range (docs/bayes.md section 3)
     coords = Coordinates(getattr(lik, "reference_range", None))
     target = CollapsedTarget(lik, prior, q_map, n_iter, coords)

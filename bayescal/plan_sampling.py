@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .collapsed import report_unconverged, sample_collapsed
+from .collapsed import check_walkers, report_unconverged, sample_collapsed
 from .floorplan import FloorPlan
 from .parameters import from_identifiable
 from .plan_lsq import plan_map_start
@@ -79,9 +79,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
     ndim = 7 + 2 * plan.n_walls + (sigma_px is None)
-    if n_walkers is not None and int(n_walkers) < 2 * ndim:
-        raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
-                         f"red-blue moves, got {n_walkers}")
+    check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     psi_map, cov_map, q_map, map_res = plan_map_start(pixels, plan, sigma_px=sigma_px,

@@ -38,6 +38,7 @@ from .collapsed import (
     NotConvergedError,
     NotConvergedWarning,
     check_run_options,
+    check_walkers,
     default_moves,
     report_unconverged,
     sample_collapsed,
@@ -82,9 +83,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     rng : numpy.random.Generator, int or None
         Randomness of walkers, emcee and point draws: same seed, same chains.
     n_walkers : int, optional
-        emcee walkers, at least ``2 * ndim`` for the red-blue moves (default
-        ``2 * ndim + 2``: the ``tau_factor`` rule fixes the chain length in
-        steps whatever the ensemble size, so few walkers are cheapest).
+        emcee walkers, at least ``ndim + 2`` (default
+        :func:`~bayescal.sampler_steps.default_walkers`: ``2 ndim + 2`` up to 24;
+        the ``tau_factor`` rule fixes the chain length in steps whatever the
+        ensemble size, so few walkers are cheapest).
     min_ess : float, optional
         Target effective sample size of every sampled coordinate, computed
         honestly for an ensemble (:func:`bayescal.diagnostics.ensemble_ess`).
@@ -152,9 +154,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
                           outliers=outliers)
     ndim = 7 + len(lik.extra_names)
-    if n_walkers is not None and int(n_walkers) < 2 * ndim:
-        raise ValueError(f"n_walkers must be at least 2 * ndim = {2 * ndim} for emcee's "
-                         f"red-blue moves, got {n_walkers}")
+    check_walkers(n_walkers, ndim)
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init,
                                      outliers=outliers)

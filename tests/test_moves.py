@@ -13,6 +13,7 @@ import pytest
 from scipy import stats
 
 from bayescal.moves import HMCMove, IndependenceMove
+from bayescal.sampler_steps import de_move
 from bayescal.sampling import default_moves
 
 NDIM = 7
@@ -32,11 +33,11 @@ def _normal_value_and_grad(x):
     return _log_normal(x), -np.asarray(x)
 
 
-def _run(moves, n_steps, seed):
+def _run(moves, n_steps, seed, n_walkers=N_WALKERS):
     rs = np.random.RandomState(seed)
-    sampler = emcee.EnsembleSampler(N_WALKERS, NDIM, _log_normal, vectorize=True, moves=moves)
+    sampler = emcee.EnsembleSampler(n_walkers, NDIM, _log_normal, vectorize=True, moves=moves)
     sampler.random_state = rs.get_state()
-    sampler.run_mcmc(rs.standard_normal((N_WALKERS, NDIM)), n_steps, progress=False)
+    sampler.run_mcmc(rs.standard_normal((n_walkers, NDIM)), n_steps, progress=False)
     return sampler
 
 
@@ -54,9 +55,13 @@ MOVES = {
 }
 
 
-@pytest.mark.parametrize("name", list(MOVES))
+@pytest.mark.parametrize("name", list(MOVES) + ["DEMove, 9 walkers", "default, 9 walkers"])
 def test_move_recovers_a_standard_normal(name):
-    sampler = _run(MOVES[name](), 2000, seed=11)
+    if name.endswith("9 walkers"):     # fewer than 2 ndim: the sampler's default_walkers rule
+        moves = [de_move()] if name.startswith("DE") else default_moves(BAD_MEAN, BAD_COV)
+        sampler = _run(moves, 4000, seed=11, n_walkers=NDIM + 2)
+    else:
+        sampler = _run(MOVES[name](), 2000, seed=11)
     chain = sampler.get_chain(discard=400)                  # (steps, walkers, 7)
     # HMC can be antithetic (tau < 1, even a negative estimate): count such draws as
     # independent (tau = 1), which only makes the bounds below more conservative

@@ -93,10 +93,10 @@ def test_same_seed_same_samples_different_seed_different():
 def test_too_few_walkers_and_bad_options_raise():
     ds = _room(60)
     # 7 parameters + the outlier fraction
-    with pytest.raises(ValueError, match=r"n_walkers must be at least 2 \* ndim = 16.*got 10"):
-        _sample(ds, n_walkers=10)
-    with pytest.raises(ValueError, match=r"at least 2 \* ndim = 20"):       # + 2 noise levels
-        _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=19)
+    with pytest.raises(ValueError, match=r"n_walkers must be at least ndim \+ 2 = 10.*got 9"):
+        _sample(ds, n_walkers=9)
+    with pytest.raises(ValueError, match=r"at least ndim \+ 2 = 12"):       # + 2 noise levels
+        _sample(ds, sigma_px=None, sigma_scene=None, n_walkers=11)
     with pytest.raises(ValueError, match="on_unconverged must be 'warn' or 'raise'"):
         _sample(ds, on_unconverged="ignore")
     with pytest.raises(ValueError, match="n_samples must be an integer >= 1, got 0"):
