@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from .floorplan import FloorPlan, plan_point
+from .floorplan import FloorPlan, corner_azimuths, plan_point, wrap_angle
+from .laser import triangulate_theta
 from .parameters import (
     IDENTIFIABLE_NAMES,
     PARAM_NAMES,
@@ -28,6 +29,7 @@ from .parameters import (
     identifiable_jacobian,
     to_identifiable,
 )
+from .plan_corners import candidate_walls, shallow_corners
 from .planmodel import PlanLikelihood
 from .priors import Prior
 from .results import CalibrationResult, ConvergenceError, identifiability_report
@@ -221,6 +223,7 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
         except ValueError:                  # a start outside the model's domain
             continue
         best = sol if sol.objective < best.objective else best
+    best = _corner_restarts(lik, prior, best, max_iter)
     lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
     return lik, prior, best
 
@@ -247,6 +250,12 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     if staged:
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter, free=stage1)
         g, t = sol.g, sol.t
+    return _finish(lik, prior, g, t, sig, max_iter)
+
+
+def _finish(lik, prior, g, t, sig, max_iter):
+    """Joint solve from (g, t) (re-estimating an inferred noise), re-picked corners,
+    checks and the collapsed objective; returns the solution."""
     for _ in range(4 if lik.infer_px else 1):
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
         g, t = sol.g, sol.t
@@ -260,6 +269,54 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     sol.objective = sol.cost + (lik.n * np.log(sol.sigma_px) if lik.infer_px else 0.0)
     sol.assignment = (lik.corner.copy(), lik.wall_pair.copy(), lik.ref_sigma_px)
     return sol
+
+
+def _corner_restarts(lik, prior, best, max_iter):
+    """Restarts that move each shallow corner across the points (``docs/floorplan.md`` s. 9).
+
+    For each shallow corner of the best solution (:mod:`bayescal.plan_corners`), the
+    points of its two walls, triangulated with the fitted sensor, are split at a few
+    candidate azimuths (the best two-line split and a grid); the solve restarts from
+    walls meeting at each split, and a restart wins if its collapsed cost is lower
+    (and it passes the checks when the best did). Measured on the two wrong-wall
+    replications of the coverage study: objective 382 -> 296 (the true configuration).
+    """
+    W = lik.n_walls
+    for j in shallow_corners(best.g[8:].reshape(W, 2)):
+        walls = best.g[8:].reshape(W, 2)
+        pts, valid = triangulate_theta(best.g[:7], lik.pixels)
+        jj = (j + 1) % W
+        sel = np.flatnonzero(np.isin(best.wall_index, (j, jj)) & valid)
+        c = corner_azimuths(walls[:, 0], walls[:, 1])[j]
+        order = sel[np.argsort(wrap_angle(best.t[sel] - c))]
+        current = int(np.sum(best.wall_index[order] == j))
+        found = None                        # (cost, g, t, assignment) of the best candidate
+        for k, w_j, w_jj in candidate_walls(pts[order, :2]):
+            if abs(k - current) <= 2:
+                continue
+            g = best.g.copy()
+            for i, (d, a) in ((j, w_j), (jj, w_jj)):
+                g[8 + 2 * i:10 + 2 * i] = d, walls[i, 1] + wrap_angle(a - walls[i, 1])
+            lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+            lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
+                       g[8:].reshape(W, 2))
+            try:                # a short solve at the best's noise: enough to rank the basins
+                sol = _solve(lik, prior, g, best.t, best.sigma_px, max_iter=min(max_iter, 12))
+            except ValueError:
+                continue
+            if sol.cost < best.cost and (found is None or sol.cost < found[0]):
+                found = (sol.cost, sol.g, sol.t, (lik.corner.copy(), lik.wall_pair.copy()))
+        if found is not None:               # polish the winner as any start is polished
+            lik.corner, lik.wall_pair = found[3]
+            try:
+                sol = _finish(lik, prior, found[1], found[2], best.sigma_px, max_iter)
+            except ValueError:
+                sol = None
+            if sol is not None and sol.objective < best.objective \
+                    and (sol.check["ok"] or not best.check["ok"]):
+                best = sol
+        lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+    return best
 
 
 def _repick(lik, prior, sol, g, t, sig, max_iter):
