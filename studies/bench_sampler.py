@@ -214,7 +214,9 @@ def nuts_rows(seeds, *, quick=False, scene=None, settings=None):
     nuts_k = 1000 * t_nuts / ess
     med, per_k, facts = _collapsed_runs(ds, ds.approx_points, seeds, sigma_scene=sig,
                                         prior=bc.Prior())
-    shortened = " (--quick: shortened)" if quick else " (as tests/test_nuts_reference.py)"
+    shortened = (" (as tests/test_nuts_reference.py)" if settings == NUTS_SETTINGS else
+                 " (shortened from tests/test_nuts_reference.py's "
+                 f"{NUTS_SETTINGS['num_warmup']} + {NUTS_SETTINGS['num_samples']})")
     return [
         (NAME, f"NumPyro NUTS full joint ({8 + 2 * scene['n_points']} dims), {where}",
          nuts_k, 1.0, f"baseline of the next row; one run of {settings['num_chains']} chains "
