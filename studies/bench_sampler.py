@@ -23,6 +23,7 @@ import multiprocessing
 import resource
 import time
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
@@ -165,9 +166,11 @@ def _large_n_child(n_points):
 def large_n_row(base, n_points):
     """One run at large N (n_samples=200: 200 x N x 3 point draws) in a spawned child
     process, so that its peak resident memory is its own (no tracemalloc overhead)."""
+    # an executor, not a Pool: if the child dies (e.g. out of memory) the result raises
+    # BrokenProcessPool instead of waiting forever
     ctx = multiprocessing.get_context("spawn")
-    with ctx.Pool(1) as pool:
-        (med, per_k, facts), maxrss_kib = pool.apply(_large_n_child, (n_points,))
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        (med, per_k, facts), maxrss_kib = pool.submit(_large_n_child, n_points).result()
     return (NAME, f"collapsed, N={n_points}, 1000 mm, fig9, 0.1 px, 5 %, n_samples=200",
             per_k, base / per_k, f"vs naive N=40; one run, wall {med:.1f} s (target <= "
             f"300 s, the sample_posterior call only); peak resident memory "
