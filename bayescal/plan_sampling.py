@@ -119,7 +119,10 @@ def benchmark_plan_posterior(*, range_mm=1000.0, n_points=580, sigma_px=0.5,
 
     Simulates the room (``approx_model="wall"``, its ``ds.floor_plan``) once per
     repeat with seeds drawn from ``rng`` and times the whole call (MAP, tuning,
-    production run, point draws).
+    production run, point draws). The floor-plan row of ``docs/performance.md``
+    (``make bench``) times the same call differently: one room (data seed 3),
+    sampler seeds 0, 1, 2, like the other N = 580 rows, so that it is comparable
+    with them.
 
     Parameters
     ----------

@@ -13,6 +13,11 @@ Usage::
     python studies/benchmark.py                      # all benchmarks -> docs/performance.md
     python studies/benchmark.py --quick              # fewer repeats (smoke test)
     python studies/benchmark.py --only project_triangulate --out /tmp/perf.md
+    python studies/benchmark.py --only sampler --large-n 20000   # sampler rows only
+
+An ``--only`` run keeps the other benchmarks' rows of the existing output file
+(and says from which run they come). The sampler rows live in
+``studies/bench_sampler.py``.
 
 Imports only the public API of bayescal.
 """
@@ -31,7 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import bayescal as bc
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+
+from bench_sampler import once as _once  # noqa: E402
+
+import bayescal as bc  # noqa: E402
 
 BENCHMARKS = {}
 
@@ -142,13 +151,6 @@ def bench_project_triangulate(timer):
     return rows
 
 
-def _once(func):
-    """Wall time of a single call (for runs too long to repeat), and its result."""
-    t0 = time.perf_counter()
-    out = func()
-    return time.perf_counter() - t0, out
-
-
 def _large_room_580():
     """The setting of fact 3 (docs/model.md): 580 points, 5000 mm, 0.1 px, 5 % approximate."""
     ds = bc.simulate_room(range_mm=5000, n_points=580, sigma_px=0.1, approx_error=0.05,
@@ -208,118 +210,21 @@ def bench_simultaneous_lsq(timer):
                 f"converged={res.converged}; a lower bound on the speed-up (baseline capped)")]
 
 
-def _naive_joint(n_points, n_steps):
-    """Full-joint emcee (8 + 3N unknowns as 7 + 2N) on an N-point small room: time,
-    effective samples (walkers x kept steps / max tau) and tau."""
-    from bayescal.sampling import sample_joint
-
-    ds = bc.simulate_room(range_mm=1000, n_points=n_points, sigma_px=0.3, approx_error=0.02,
-                          approx_model="gaussian", rng=4)
-    t, out = _once(lambda: sample_joint(ds.pixels, ds.approx_points, sigma_px=0.3,
-                                        sigma_scene=ds.sigma_scene, rng=0, n_steps=n_steps))
-    n_walkers = out["chain"].shape[1]
-    tau = float(np.max(out["tau"]))
-    ess = n_walkers * (n_steps // 2) / tau
-    return ds, t, ess, tau, n_walkers
-
-
-SAMPLER_SEEDS = (0, 1, 2)
-#: N of the one large-N sampler row (set by --large-n; 0 = skipped)
-LARGE_N = 0
-
-
-def _room_for(range_mm, model, n_points, *, approx_error=0.05, sigma_px=0.1, rng=3):
-    ds = bc.simulate_room(range_mm=range_mm, n_points=n_points, sigma_px=sigma_px,
-                          approx_error=approx_error, approx_model=model, rng=rng)
-    return ds, np.maximum(ds.sigma_scene, 1.0)
-
-
-def _collapsed_runs(ds, sigma_scene, seeds, *, sigma_px="given", **kw):
-    """Median wall time, median time per 1000 ESS (min over parameters), the runs' facts."""
-    import warnings
-
-    sp = ds.sigma_px if sigma_px == "given" else sigma_px
-    times, per_k, facts = [], [], []
-    for seed in seeds:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            t, post = _once(lambda s=seed: bc.sample_posterior(
-                ds.pixels, ds.approx_points, sigma_px=sp, sigma_scene=sigma_scene, rng=s,
-                progress=False, **kw))
-        ess = float(np.min(post.ess))
-        times.append(t)
-        per_k.append(1000 * t / ess)
-        facts.append((post.converged, ess, float(np.max(post.tau)), post.n_steps,
-                      [str(w.message)[:60] for w in caught
-                       if issubclass(w.category, bc.NotConvergedWarning)]))
-    return float(np.median(times)), float(np.median(per_k)), facts
-
-
-def _facts_text(facts):
-    conv = sum(f[0] for f in facts)
-    return (f"{conv}/{len(facts)} converged; min ESS {min(f[1] for f in facts):.0f}, "
-            f"max tau {max(f[2] for f in facts):.1f}, steps {'/'.join(str(f[3]) for f in facts)}")
-
-
 @benchmark("sampler")
 def bench_sampler(timer):
     """Collapsed sampler until every parameter has an honest ESS >= 1000 (default settings),
-    beside the naive full-joint emcee at N = 10 and N = 40 (the same-run baseline). Rows
-    give the median over seeds of the time per 1000 effective samples (lower is better) and
-    the median wall time; the target is <= 10 s at N = 580, <= 60 s at N = 5000, <= 5 min
-    at N = 20 000."""
-    quick = timer.repeats < 7
-    steps = {10: 1000 if quick else 3000, 40: 1000 if quick else 3000}
-    seeds = SAMPLER_SEEDS[:1] if quick else SAMPLER_SEEDS
-    rows = []
-    base = {}
-    for n in (10, 40):
-        ds, t, ess, tau, nw = _naive_joint(n, steps[n])
-        base[n] = (ds, 1000 * t / ess)
-        rows.append(Row("posterior sampling", f"naive full-joint emcee, N={n} "
-                        f"({7 + 2 * n} dims, {nw} walkers)", 1000 * t / ess, 1.0,
-                        f"baseline; {steps[n]} steps in {t:.1f} s, max tau >= {tau:.0f} "
-                        f"(chain < 50 tau: tau underestimated, so its ESS/s "
-                        f"{ess / t:.2g} is an upper bound)"))
-    ds40 = base[40][0]
-    med, per_k, facts = _collapsed_runs(ds40, ds40.sigma_scene, seeds)
-    rows.append(Row("posterior sampling", "collapsed sample_posterior, same N=40 data",
-                    per_k, base[40][1] / per_k, f"vs naive N=40; median wall {med:.1f} s; "
-                    + _facts_text(facts)))
-    settings = [("1000 mm, fig9 (z unknown)", 1000, "fig9", 580, {}),
-                ("5000 mm, fig9 (z unknown)", 5000, "fig9", 580, {}),
-                ("1000 mm, gaussian (z known)", 1000, "gaussian", 580, {}),
-                ("5000 mm, gaussian (z known)", 5000, "gaussian", 580, {}),
-                ("1000 mm, wall", 1000, "wall", 580, {}),
-                ("5000 mm, fig9, sigma_px inferred", 5000, "fig9", 580, {"sigma_px": None}),
-                ("1000 mm, fig9 (z unknown)", 1000, "fig9", 5000, {})]
-    for label, range_mm, model, n, kw in settings:
-        ds, sig = _room_for(range_mm, model, n)
-        med, per_k, facts = _collapsed_runs(ds, sig, seeds[:1] if n > 1000 else seeds, **kw)
-        target = 10 if n <= 1000 else 60
-        rows.append(Row("posterior sampling", f"collapsed, N={n}, {label}, 0.1 px, 5 %",
-                        per_k, base[40][1] / per_k,
-                        f"vs naive N=40; median wall {med:.1f} s (target <= {target} s); "
-                        + _facts_text(facts)))
-    if LARGE_N:
-        rows.append(_large_n_row(base[40][1], LARGE_N))
-    return rows
+    beside the naive full-joint emcee at N = 10 and N = 40 (the same-run baseline) and the
+    NumPyro NUTS reference; rows and settings in ``studies/bench_sampler.py``. Rows give the
+    median over seeds of the time per 1000 effective samples (lower is better) and the
+    median wall time; the target is <= 10 s at N = 580, <= 60 s at N = 5000, <= 5 min at
+    N = 20 000."""
+    from bench_sampler import sampler_rows
+
+    return [Row(*r) for r in sampler_rows(quick=timer.repeats < 7, large_n=LARGE_N)]
 
 
-def _large_n_row(base_seconds, n_points):
-    """One run at N = 20 000 (n_samples=200: 200 x N x 3 point draws), with peak memory."""
-    import tracemalloc
-
-    ds, sig = _room_for(1000, "fig9", n_points)
-    tracemalloc.start()
-    med, per_k, facts = _collapsed_runs(ds, sig, (0,), n_samples=200)
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    return Row("posterior sampling", f"collapsed, N={n_points}, 1000 mm, fig9, 0.1 px, 5 %, "
-               f"n_samples=200", per_k, base_seconds / per_k,
-               f"vs naive N=40; one run, wall {med:.1f} s (target <= 300 s); peak traced "
-               f"memory {peak / 2**20:.0f} MiB (tracemalloc: numpy arrays included); "
-               + _facts_text(facts))
+#: N of the one large-N sampler row (set by --large-n; 0 = skipped)
+LARGE_N = 0
 
 
 def machine_facts():
@@ -343,23 +248,101 @@ def machine_facts():
 
 
 def _fmt_seconds(s):
+    if not np.isfinite(s):
+        return "-"
     for unit, scale in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6)):
         if s >= scale:
             return f"{s / scale:.3g} {unit}"
     return f"{s / 1e-9:.3g} ns"
 
 
+def _row_line(r):
+    ratio = f"{r.ratio:.1f}x" if np.isfinite(r.ratio) else "-"
+    return f"| {r.name} | {r.setting} | {_fmt_seconds(r.seconds)} | {ratio} | {r.notes} |"
+
+
+TABLE_HEAD = ["| benchmark | setting | median time / call | speed-up vs baseline | notes |",
+              "|---|---|---:|---:|---|"]
+#: the line of docs/performance.md that names the run of the carried-over rows
+CARRIED_PREFIX = "Rows not produced by the run above are carried over from"
+
+
 def table(rows):
     """Markdown table of ``rows``."""
-    lines = ["| benchmark | setting | median time / call | speed-up vs baseline | notes |",
-             "|---|---|---:|---:|---|"]
-    for r in rows:
-        lines.append(f"| {r.name} | {r.setting} | {_fmt_seconds(r.seconds)} | "
-                     f"{r.ratio:.1f}x | {r.notes} |")
-    return "\n".join(lines)
+    return "\n".join(TABLE_HEAD + [_row_line(r) for r in rows])
 
 
-def write_markdown(path, rows, facts, args):
+def carry_over(path, rows):
+    """Merge ``rows`` into the table of an earlier ``path`` (a partial ``--only`` run).
+
+    Rows of the old table whose benchmark name this run produced are replaced by
+    the new rows (at the place of the first of them); the others are kept verbatim.
+    Returns the table's lines and the provenance sentence of the kept rows ("" when
+    none were kept).
+    """
+    path = pathlib.Path(path)
+    new = [_row_line(r) for r in rows]
+    if not path.exists():
+        return new, ""
+    old_text = path.read_text().splitlines()
+    names = {r.name for r in rows}
+    lines, kept, placed = [], 0, False
+    for line in _first_table(old_text):
+        if line in TABLE_HEAD or line.startswith("|---"):
+            continue
+        if line.split(" | ")[0][2:] in names:
+            if not placed:
+                lines += new
+                placed = True
+        else:
+            lines.append(line)
+            kept += 1
+    if not placed:
+        lines += new
+    if not kept:
+        return lines, ""
+    source = _paragraph(old_text, (CARRIED_PREFIX, "Rows other than"))
+    if source is None:
+        date = next((t.split(": ", 1)[1] for t in old_text if t.startswith("- date")), "?")
+        run = next((t.split(": ", 1)[1] for t in old_text if t.startswith("- run:")), "?")
+        source = f"{CARRIED_PREFIX} the run of {date} ({run}, same file)."
+    return lines, source
+
+
+def _first_table(lines):
+    """The lines of the first table after the "## Results" heading."""
+    start = next((i for i, t in enumerate(lines) if t.strip() == "## Results"), len(lines))
+    out = []
+    for t in lines[start + 1:]:
+        if t.startswith("|"):
+            out.append(t)
+        elif out or t.startswith("#"):
+            break
+    return out
+
+
+def _paragraph(lines, prefixes):
+    """The paragraph (joined lines up to a blank one) starting with one of ``prefixes``."""
+    for i, t in enumerate(lines):
+        if t.startswith(prefixes):
+            end = next((j for j in range(i, len(lines)) if not lines[j].strip()), len(lines))
+            return " ".join(lines[i:end])
+    return None
+
+
+LOAD_NOTE = [
+    "The machine is shared: other jobs on its 2 cores slow every row, the sampler rows",
+    "(seconds to minutes of numpy work) most. A load average of 2 at the end can mean up",
+    "to ~2x longer wall times than on a quiet machine; the ratios of rows timed one after",
+    "the other in the same run move much less. Read the load line below before comparing",
+    "a wall time with its target.",
+]
+
+
+def write_markdown(path, rows, facts, args, *, carried=False):
+    """Write docs/performance.md; ``carried`` keeps the other benchmarks' rows of the
+    earlier file (for an ``--only`` run)."""
+    lines, source = carry_over(path, rows) if carried else ([_row_line(r) for r in rows], "")
     text = [
         "# Performance",
         "",
@@ -371,7 +354,10 @@ def write_markdown(path, rows, facts, args):
         "are still taken one after the other, so ratios move between runs (by up to ~2x for",
         "the sub-millisecond rows): read them as orders of magnitude. Rows whose notes say",
         "\"one run\" or give a wall time were timed once (they take seconds to minutes); the",
-        "sampler rows give the time per 1000 effective samples (min over parameters).",
+        "sampler rows give the time per 1000 effective samples (min over parameters), the",
+        "median over sampler seeds 0, 1, 2 (one seed at N >= 5000).",
+        "",
+        *LOAD_NOTE,
         "",
         "## Machine",
         "",
@@ -380,7 +366,9 @@ def write_markdown(path, rows, facts, args):
         "",
         "## Results",
         "",
-        table(rows),
+        *([source, ""] if source else []),
+        *TABLE_HEAD,
+        *lines,
         "",
         "## Adding a benchmark",
         "",
@@ -403,7 +391,8 @@ def main(argv=None):
                         help="run only this benchmark (repeatable)")
     argv = sys.argv[1:] if argv is None else list(argv)
     parser.add_argument("--large-n", type=int, default=0,
-                        help="also time the sampler once at this N (e.g. 20000; minutes)")
+                        help="also time the sampler once at this N in a child process "
+                        "(make bench: 20000, minutes; 0 = skipped)")
     args = parser.parse_args(argv)
     global LARGE_N
     LARGE_N = args.large_n
@@ -412,7 +401,7 @@ def main(argv=None):
     for name in args.only or BENCHMARKS:
         rows += BENCHMARKS[name](timer)
     print(table(rows))
-    write_markdown(args.out, rows, machine_facts(), argv)
+    write_markdown(args.out, rows, machine_facts(), argv, carried=bool(args.only))
     print(f"wrote {args.out}")
     return 0
 
