@@ -27,7 +27,10 @@ def test_plan_posterior_shapes_and_walls(plan_post):
     assert post.point_samples.shape == (300, N, 3)
     assert post.wall_samples.shape == (300, W, 2)
     assert post.plan is ds.floor_plan
-    assert post.noise_samples.shape == (300, 0)
+    assert post.noise_samples.shape == (300, 1)          # logit w of the outlier mixture
+    assert post.noise_names == ("outlier_frac",)
+    assert post.outlier_prob.shape == (N,) and np.all((post.outlier_prob >= 0)
+                                                       & (post.outlier_prob <= 1))
     assert np.all(np.isnan(post.approx_points))
     assert post.diagnostics.names[7:9] == ("d_0", "a_0")
     # every drawn point lies on the wall its azimuth falls on (to rounding), given its draw
@@ -53,6 +56,8 @@ def test_plan_posterior_save_load_and_reconstruct(plan_post, tmp_path):
     back = bc.load_posterior(path)
     np.testing.assert_array_equal(back.wall_samples, post.wall_samples)
     np.testing.assert_array_equal(back.param_samples, post.param_samples)
+    np.testing.assert_array_equal(back.outlier_prob, post.outlier_prob)
+    assert back.noise_names == post.noise_names
     assert isinstance(back.plan, FloorPlan)
     np.testing.assert_array_equal(back.plan.param_nominal, post.plan.param_nominal)
     np.testing.assert_array_equal(back.plan.param_sd, post.plan.param_sd)
@@ -86,8 +91,12 @@ def test_plan_posterior_argument_errors():
         bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.5, sigma_scene=1.0)
     with pytest.raises(TypeError, match="sigma_scene"):
         bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.5)
-    with pytest.raises(ValueError, match="n_walkers must be at least ndim \\+ 2 = 23"):
+    # 7 + 14 wall parameters + logit w (the outlier mixture, on by default)
+    with pytest.raises(ValueError, match="n_walkers must be at least ndim \\+ 2 = 24"):
         bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.5, n_walkers=20)
+    with pytest.raises(ValueError, match="n_walkers must be at least ndim \\+ 2 = 23"):
+        bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.5, n_walkers=20,
+                            outliers=False)
 
 
 def test_floor_plan_arrays_round_trip():

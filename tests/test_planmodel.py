@@ -165,15 +165,18 @@ def test_map_start_for_the_sampler():
     psi, cov, q, res = plan_map_start(ds.pixels, ds.floor_plan, sigma_px=None)
     lik = res.extras["likelihood"]
     W = plan.n_walls
-    assert psi.shape == (7 + 2 * W + 1,) and cov.shape == (len(psi), len(psi))
+    # (theta, walls, log sigma_px, logit w): the outlier mixture is on by default
+    assert psi.shape == (7 + 2 * W + 2,) and cov.shape == (len(psi), len(psi))
+    assert lik.extra_names[-2:] == ("sigma_px", "outlier_frac")
     assert q.shape == (580, 1)
-    assert np.exp(psi[-1]) == pytest.approx(0.5, rel=0.1)     # 580 dof: sd ~3 %
+    assert np.exp(psi[-2]) == pytest.approx(0.5, rel=0.1)     # 580 dof: sd ~3 %
+    assert cov[-1, -1] == 1.0 and np.all(cov[-1, :-1] == 0)
     np.linalg.cholesky(cov)
     ll, q2, _ = lik.laplace(psi)
     assert np.isfinite(ll)
     # the conditional modes are the MAP's azimuths, except where a pixel's best fit is
     # the kink at a corner (the MAP sits on it, each piece's own mode lies beyond it)
-    corner = corner_azimuths(psi[7:-1:2], psi[8:-1:2])[lik.corner]
+    corner = corner_azimuths(psi[7:7 + 2 * W:2], psi[8:7 + 2 * W:2])[lik.corner]
     away = np.abs(wrap_angle(q[:, 0] - corner)) > 1e-3
     assert away.mean() > 0.95
     np.testing.assert_allclose(q2[away], q[away], atol=1e-6)
@@ -278,10 +281,15 @@ def test_plan_inconsistent_with_the_pixels_raises():
     d[2] *= 1.4
     wrong = FloorPlan.from_lines(d, true_plan.angles, distance_sd=20.0, angle_sd=0.01)
     with pytest.raises(bc.ConvergenceError, match="far off the plan: wall chi-square"):
-        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5)
-    res = bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, raise_on_failure=False)
+        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, outliers=False)
+    res = bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, raise_on_failure=False,
+                                    outliers=False)
     assert not res.converged and res.extras["check"]["p_wall"] < 1e-6
     assert res.extras["check"]["worst"][0] == "d_2"
+    # the outlier mixture would explain the wall away by flagging its points: the wall's
+    # share of flagged points fails the calibration just as loudly
+    with pytest.raises(bc.ConvergenceError, match="points on wall 2 are flagged as outliers"):
+        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5)
     # the true plan passes on the same pixels
     assert bc.calibrate_simultaneous(ds.pixels, true_plan, sigma_px=0.5).converged
 
