@@ -33,7 +33,8 @@ from .sampler_steps import (
 )
 
 __all__ = ["sample_collapsed", "check_run_options", "check_walkers", "report_unconverged",
-           "default_moves", "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning"]
+           "default_moves", "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning",
+           "posterior_outlier_prob"]
 
 #: shares of the HMC and independence moves in the production run (the rest: DEMove)
 HMC_WEIGHT = 0.3
@@ -246,3 +247,19 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
                              batch=max(1, 500_000 // max(lik.n, 1)))
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
+
+
+def posterior_outlier_prob(lik, psi, q, batch=256):
+    """Posterior probability (N,) that each row is an outlier: the mean over draws of its
+    conditional probability given the globals (None without the mixture).
+
+    Shared by both posteriors (approximate points and floor plan); ``lik`` provides
+    ``outlier_prob(psi, q)``, ``psi`` (S, d) and ``q`` (S, N, k) are the draws.
+    """
+    if not getattr(lik, "outliers", False):
+        return None
+    total = np.zeros(lik.n)
+    for lo in range(0, len(psi), batch):
+        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
+        total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
+    return total / len(psi)

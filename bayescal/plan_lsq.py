@@ -18,24 +18,19 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import stats
+from scipy.special import expit
 
-from .floorplan import FloorPlan, corner_azimuths, plan_point, wrap_angle
+from .floorplan import FloorPlan, corner_azimuths, wrap_angle
 from .laser import triangulate_theta
-from .parameters import (
-    IDENTIFIABLE_NAMES,
-    PARAM_NAMES,
-    SensorParams,
-    from_identifiable,
-    identifiable_jacobian,
-    to_identifiable,
-)
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE
+from .parameters import SensorParams, from_identifiable, identifiable_jacobian, to_identifiable
 from .plan_corners import candidate_walls, shallow_corners
+from .plan_result import CHECK_P, N_RESTARTS, check_solution, make_result
 from .planmodel import PlanLikelihood
 from .priors import Prior
-from .results import CalibrationResult, ConvergenceError, identifiability_report
 from .schur import damped_step
 
-__all__ = ["calibrate_plan", "plan_map_start", "PlanMapSolution"]
+__all__ = ["calibrate_plan", "plan_map_start", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
 
 
 class PlanMapSolution:
@@ -62,6 +57,11 @@ def _normal_equations(lik, prior, g, t, sig):
     theta, phi, walls = g[:7], g[7], g[8:].reshape(W, 2)
     k = lik.hard_wall_index(walls, t)
     R, Jth, Jw, Jt = lik.residuals(theta, walls, t, k, sig, jacobian=True)
+    R0 = R
+    if lik.em_weights is not None:           # EM M-step: each point's rows weighted
+        s = np.sqrt(lik.em_weights)
+        R, Jth, Jw, Jt = R * s[:, None], Jth * s[:, None, None], Jw * s[:, None, None], \
+            Jt * s[:, None]
     idx = np.arange(N)
     Jg = np.zeros((N, 2, G))
     Jg[:, :, :7] = Jth
@@ -81,7 +81,7 @@ def _normal_equations(lik, prior, g, t, sig):
     gg[8:] += rw / lik.plan.param_sd
     gt = np.einsum("nk,nk->n", Jt, R)
     cost = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
-    return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, k=k, Jp=Jp)
+    return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, R0=R0, k=k, Jp=Jp)
 
 
 def _cost(lik, prior, g, t, sig):
@@ -93,6 +93,8 @@ def _cost(lik, prior, g, t, sig):
             or g[0] < 0 or g[0] + g[7] <= 0):
         return np.inf
     R = lik.residuals(g[:7], walls, t, lik.hard_wall_index(walls, t), sig)
+    if lik.em_weights is not None:
+        R = R * np.sqrt(lik.em_weights)[:, None]
     rp = prior.residuals(from_identifiable(g[:7], g[7]))
     rw = (g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
     c = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
@@ -157,42 +159,17 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
                            message=message, sigma_px=float(sig))
 
 
-def _point_covariances(lik, sol):
-    """3x3 Laplace covariance of each point (azimuth, sensor and wall uncertainty)."""
-    W, N = lik.n_walls, lik.n
-    g, t, cov, ne = sol.g, sol.t, sol.cov, sol.ne
-    k = sol.wall_index
-    walls = g[8:].reshape(W, 2)
-    _, dPt, dPth, dPw = plan_point(g[:7], t, walls[k, 0], walls[k, 1], jacobian=True)
-    idx = np.arange(N)
-    Gg = np.zeros((N, 3, 8 + 2 * W))
-    Gg[:, :, :7] = dPth
-    Gg[idx, :, 8 + 2 * k] = dPw[:, :, 0]
-    Gg[idx, :, 9 + 2 * k] = dPw[:, :, 1]
-    B, C = ne["B"], ne["C"]
-    K = -np.einsum("ij,nj->ni", cov, B) / C[:, None]              # cov(g, t_i): (N, G)
-    var_t = 1.0 / C + np.einsum("ni,ij,nj->n", B, cov, B) / C**2
-    GK = np.einsum("nai,ni->na", Gg, K)                            # (N, 3)
-    return (var_t[:, None, None] * dPt[:, :, None] * dPt[:, None, :]
-            + dPt[:, :, None] * GK[:, None, :] + GK[:, :, None] * dPt[:, None, :]
-            + np.einsum("nai,ij,nbj->nab", Gg, cov, Gg))
-
-
-#: p-value below which the MAP's wall-prior chi-square (or, with the pixel noise given, its
-#: pixel chi-square) marks a wrong minimum: restart, and fail if no start passes
-CHECK_P = 1e-6
-#: restarts from sensor draws of the prior when the first solution fails its checks
-N_RESTARTS = 4
-
-
-def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
+def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
+         outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
     """MAP with the pixel noise given or estimated; returns (lik, prior, sol).
 
     A staged solve from ``init`` (see :func:`_fit_from`); if its solution fails the
-    checks of :func:`_check` (walls far off their plan, or pixels far off the model),
-    up to ``N_RESTARTS`` restarts from sensor draws of the prior (a fixed seed: the
-    result is deterministic). The lowest collapsed cost wins; ``sol.check`` says
-    whether it passed (:func:`_make_result` flags it unconverged otherwise).
+    checks of :func:`~bayescal.plan_result.check_solution` (walls far off their plan,
+    or pixels far off the model), up to ``N_RESTARTS`` restarts from sensor draws of
+    the prior (a fixed seed: the result is deterministic). The lowest collapsed cost
+    wins; ``sol.check`` says whether it passed (:func:`~bayescal.plan_result.make_result`
+    flags it unconverged otherwise). ``outliers``: the per-point outlier mixture,
+    solved by EM (:func:`_finish`).
     """
     if not isinstance(plan, FloorPlan):
         raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
@@ -201,7 +178,9 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
         init = prior.mean()
     elif not isinstance(init, SensorParams):
         raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
-    lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init)
+    lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init,
+                         outliers=outliers, outlier_scale=outlier_scale,
+                         outlier_prior=outlier_prior)
     if lik.n < 4:
         raise ValueError(f"need at least 4 laser points, got N={lik.n}")
     best = None
@@ -224,7 +203,7 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter):
             continue
         best = sol if sol.objective < best.objective else best
     best = _corner_restarts(lik, prior, best, max_iter)
-    lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+    _restore(lik, best)
     return lik, prior, best
 
 
@@ -242,6 +221,7 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     plan = lik.plan
     lik.assign(init)
     lik.ref_sigma_px = 1.0 if lik.infer_px else lik.sigma_px
+    lik.em_weights = None                   # a fresh start: its own EM
     theta0 = to_identifiable(init.to_array())
     g = np.concatenate([theta0, [init.phi], plan.param_nominal])
     t = lik._start(theta0[None])[0]
@@ -253,22 +233,98 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     return _finish(lik, prior, g, t, sig, max_iter)
 
 
-def _finish(lik, prior, g, t, sig, max_iter):
-    """Joint solve from (g, t) (re-estimating an inferred noise), re-picked corners,
-    checks and the collapsed objective; returns the solution."""
-    for _ in range(4 if lik.infer_px else 1):
+def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
+    """Joint solve from (g, t) (re-estimating an inferred noise, EM for the outliers),
+    re-picked corners, checks and the collapsed objective; returns the solution.
+
+    EM for the outlier mixture, as for approximate points: the E-step takes each
+    point's outlier probability ``r`` at the MAP with its azimuth integrated out
+    (:meth:`~bayescal.planmodel.PlanLikelihood.outlier_prob`), the M-step the least
+    squares with weights ``(1 - r) + r / c^2`` on the point's pixel rows and the
+    logit-scale mode ``w = (sum r + a) / (N + a + b)``, until ``r`` settles. Without
+    EM weights yet (a fresh start) the first E-step is annealed (:func:`_anneal`).
+    """
+    if lik.outliers and lik.em_weights is None:
+        _anneal(lik, prior, g, t, sig)
+    rounds = max_rounds if lik.outliers else (4 if lik.infer_px else 1)
+    for k in range(rounds):
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter)
-        g, t = sol.g, sol.t
+        g, t, old = sol.g, sol.t, sig
         if lik.infer_px:
             # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
-            # freedom per point: two pixel rows, one azimuth); maximum at mean S_i
+            # freedom per point: two pixel rows, one azimuth); maximum at mean S_i (EM:
+            # the weighted S_i, each component's -log sigma summing to one per point)
             sig = float(sig * np.sqrt(np.sum(sol.ne["R"] ** 2) / lik.n))
+        if lik.outliers and _e_step(lik, g, sig) < r_tol and k > 0 \
+                and abs(np.log(sig / old)) < 1e-4:
+            break
+    n_rounds = k + 1
     sol = _repick(lik, prior, sol, g, t, sig, max_iter)
-    sol.check = _check(lik, sol)
+    sol.em_rounds = n_rounds
+    if lik.outliers:                        # the probabilities at the final MAP
+        _e_step(lik, sol.g, sol.sigma_px)
+    sol.em = _em_state(lik)
+    sol.check = check_solution(lik, sol)
     # comparable across starts with inferred noise: the collapsed negative log posterior
     sol.objective = sol.cost + (lik.n * np.log(sol.sigma_px) if lik.infer_px else 0.0)
     sol.assignment = (lik.corner.copy(), lik.wall_pair.copy(), lik.ref_sigma_px)
     return sol
+
+
+def _em_state(lik):
+    """A copy of the EM state ``(weights, r, w)`` (None without the mixture)."""
+    if not lik.outliers:
+        return None
+    return lik.em_weights.copy(), lik.em_r.copy(), lik.em_w
+
+
+def _restore(lik, sol):
+    """Put the likelihood back in the state (walls' pairs, reference noise, EM) of ``sol``."""
+    lik.corner, lik.wall_pair, lik.ref_sigma_px = sol.assignment
+    if sol.em is not None:
+        lik.em_weights, lik.em_r, lik.em_w = sol.em[0].copy(), sol.em[1].copy(), sol.em[2]
+
+
+def _logit(w):
+    return float(np.log(w) - np.log1p(-w))
+
+
+def _e_step(lik, g, sig):
+    """EM E-step at ``g``: sets ``r``, ``w`` and the weights; returns ``max |change of r|``."""
+    a, b = lik.outlier_prior
+    psi = np.concatenate([g[:7], g[8:], [np.log(sig)] if lik.infer_px else [],
+                          [_logit(lik.em_w)]])
+    r = lik.outlier_prob(psi)
+    r = np.where(np.isfinite(r), r, 1.0)         # no inlier fit at all: an outlier
+    change = float(np.max(np.abs(r - lik.em_r)))
+    lik.em_r, lik.em_w = r, float((np.sum(r) + a) / (lik.n + a + b))
+    lik.em_weights = (1.0 - r) + r / lik.outlier_scale**2
+    return change
+
+
+def _anneal(lik, prior, g, t, sig):
+    """First E-step at a start, with the noise scaled to the median point.
+
+    Away from the MAP every point misfits; scaling the noise by ``T = sqrt(median
+    m_i / median chi2(1))`` (``m_i`` the point's squared whitened residual at its own
+    best azimuth: one degree of freedom) makes the typical point an inlier and
+    leaves the gross errors far out, so that none enters the first fit at full weight.
+    """
+    a, b = lik.outlier_prior
+    lik.em_weights, lik.em_r, lik.em_w = None, np.zeros(lik.n), a / (a + b)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        _, ne = _normal_equations(lik, prior, g, t, sig)
+        m = np.sum(ne["R0"] ** 2, axis=1) - ne["gt"] ** 2 / ne["C"]
+    ok = np.isfinite(m)
+    if not np.any(ok):
+        lik.em_weights = np.ones(lik.n)
+        return
+    c = lik.outlier_scale
+    T2 = max(1.0, float(np.median(m[ok]) / stats.chi2.median(1)))
+    # log L_out - log L_in = m (1 - 1/c^2) / 2 - log c (two rows, one latent: planmodel)
+    delta = 0.5 * np.where(ok, m, 0.0) / T2 * (1.0 - 1.0 / c**2) - np.log(c)
+    lik.em_r = np.where(ok, expit(_logit(lik.em_w) + delta), 1.0)
+    lik.em_weights = (1.0 - lik.em_r) + lik.em_r / c**2
 
 
 def _corner_restarts(lik, prior, best, max_iter):
@@ -297,7 +353,7 @@ def _corner_restarts(lik, prior, best, max_iter):
             g = best.g.copy()
             for i, (d, a) in ((j, w_j), (jj, w_jj)):
                 g[8 + 2 * i:10 + 2 * i] = d, walls[i, 1] + wrap_angle(a - walls[i, 1])
-            lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+            _restore(lik, best)
             lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
                        g[8:].reshape(W, 2))
             try:                # a short solve at the best's noise: enough to rank the basins
@@ -315,7 +371,7 @@ def _corner_restarts(lik, prior, best, max_iter):
             if sol is not None and sol.objective < best.objective \
                     and (sol.check["ok"] or not best.check["ok"]):
                 best = sol
-        lik.corner, lik.wall_pair, lik.ref_sigma_px = best.assignment
+        _restore(lik, best)
     return best
 
 
@@ -345,30 +401,9 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
     return sol
 
 
-def _check(lik, sol):
-    """Plausibility of a MAP: walls against their plan, pixels against their noise.
-
-    At the MAP the wall prior residuals ``z = (w - plan) / sd`` have variance
-    ``1 - posterior var / prior var <= 1`` each, so ``sum z^2`` is at most a
-    chi-square with 2W degrees of freedom; with the pixel noise given, the pixel
-    chi-square has N (two rows, one azimuth per point). A p-value below
-    ``CHECK_P`` marks a wrong minimum (or a plan or noise inconsistent with the
-    data); only the wall check fails the calibration, the pixel one restarts it.
-    """
-    z = (sol.g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
-    wall_chi2 = float(z @ z)
-    p_wall = float(stats.chi2.sf(wall_chi2, z.size))
-    p_px = 1.0
-    if not lik.infer_px:
-        p_px = float(stats.chi2.sf(np.sum(sol.ne["R"] ** 2), lik.n))
-    k = int(np.argmax(np.abs(z)))
-    return {"ok": p_wall > CHECK_P and p_px > CHECK_P, "walls_ok": p_wall > CHECK_P,
-            "wall_chi2": wall_chi2, "p_wall": p_wall, "p_pixels": p_px,
-            "worst": (lik.plan.param_names[k], float(z[k]))}
-
-
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
-                   max_iter=200, raise_on_failure=True):
+                   max_iter=200, raise_on_failure=True, outliers=True,
+                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
     """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
 
     Called by :func:`bayescal.calibrate_simultaneous` when its second argument
@@ -380,77 +415,30 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         ``params``, ``points`` (N, 3), ``covariance`` (8, 8); ``extras``:
         ``walls`` (W, 2) the estimated ``(d_k, a_k)``, ``wall_covariance``
         (2W, 2W) in the order ``d_0, a_0, d_1, ...``, ``wall_index`` (N,),
-        ``azimuths`` (N,), ``point_covariance`` (N, 3, 3), ``map``, ``noise``.
+        ``azimuths`` (N,), ``point_covariance`` (N, 3, 3), ``map``, ``noise``
+        (with ``outlier_frac``, the MAP of ``w``, under the mixture), ``em_rounds``;
+        ``outlier_prob`` (N,) each point's outlier probability at the MAP (None
+        with ``outliers=False``).
     """
     lik, _, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
-                       max_iter=max_iter)
-    return _make_result(lik, sol, absolute_sigma, raise_on_failure)
-
-
-def _make_result(lik, sol, absolute_sigma, raise_on_failure):
-    W, N = lik.n_walls, lik.n
-    g, sig = sol.g, sol.sigma_px
-    theta, phi = g[:7], g[7]
-    R = sol.ne["R"]
-    chi2 = float(np.sum(R * R))
-    n_res, n_unk = 2 * N, 7 + 2 * W + N
-    red = chi2 / max(n_res - N, 1)            # plan rows carry the walls: N dof per point pair
-    scale = 1.0 if absolute_sigma else red
-    cov = sol.cov * scale
-    J = identifiable_jacobian(theta, phi)
-    cov8 = J @ cov[:8, :8] @ J.T
-    params = SensorParams.from_array(from_identifiable(theta, phi))
-    walls = g[8:].reshape(W, 2)
-    points = plan_point(theta, sol.t, walls[sol.wall_index, 0], walls[sol.wall_index, 1])
-    # identifiability of the 8 paper parameters from pixels and plan (walls reduced out,
-    # sensor priors left out)
-    Jp = sol.ne["Jp"]
-    info = sol.S.copy()
-    info[:8, :8] -= Jp.T @ Jp
-    info_t = info[:8, :8] - info[:8, 8:] @ np.linalg.solve(info[8:, 8:], info[8:, :8])
-    e, V = np.linalg.eigh(0.5 * (info_t[:7, :7] + info_t[:7, :7].T))
-    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
-    report = identifiability_report(root @ np.linalg.inv(J)[:7], PARAM_NAMES)
-    result = CalibrationResult(
-        method="simultaneous", params=params, points=points, covariance=0.5 * (cov8 + cov8.T),
-        covariance_identifiable=cov[:7, :7],
-        residual_rms={"pixel_px": float(np.sqrt(np.mean((R * sig) ** 2)))},
-        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
-        converged=bool(sol.converged and np.all(np.isfinite(g))), message=sol.message,
-        nfev=sol.nfev, identifiability=report,
-        extras={"walls": walls.copy(), "wall_covariance": cov[8:, 8:],
-                "wall_names": lik.plan.param_names, "wall_index": sol.wall_index,
-                "azimuths": sol.t, "point_covariance": _point_covariances(lik, sol) * scale,
-                "map": sol, "noise": {"sigma_px": sig, "kappa": None}, "theta": theta,
-                "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
-                "floor_plan": lik.plan})
-    chk = sol.check
-    result.extras["check"] = chk
-    if result.converged and not chk["walls_ok"]:
-        result.converged = False
-        result.message = (
-            f"the walls of the best least-squares solution (of {N_RESTARTS + 1} starts) are "
-            f"far off the plan: wall chi-square {chk['wall_chi2']:.1f} on {2 * W} degrees of "
-            f"freedom (p = {chk['p_wall']:.2g}), worst {chk['worst'][0]} at "
-            f"{chk['worst'][1]:+.1f} prior sd; a local minimum, or a plan (or its sds) "
-            f"inconsistent with the pixels")
-    if not result.converged and raise_on_failure:
-        raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
-                               result=result)
-    return result
+                       max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
+                       outlier_prior=outlier_prior)
+    return make_result(lik, sol, absolute_sigma, raise_on_failure)
 
 
 def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
-                   max_iter=200, raise_on_failure=True):
+                   max_iter=200, raise_on_failure=True, outliers=True,
+                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
     """MAP start for the collapsed sampler (internal).
 
     Returns
     -------
-    psi_map : ndarray, shape (7 + 2W [+ 1],)
-        ``(theta, walls flattened[, log sigma_px])``.
+    psi_map : ndarray, shape (7 + 2W [+ 1] [+ 1],)
+        ``(theta, walls flattened[, log sigma_px][, logit w])``.
     cov_psi : ndarray, same square shape
         Laplace covariance (phi marginalised; ``log sigma_px`` given variance
-        ``1 / (2N)``, uncorrelated).
+        ``1 / (2N)``, ``logit w`` variance 1 (about the Beta(1, 19) prior's
+        spread), both uncorrelated).
     q_map : ndarray, shape (N, 1)
         Point azimuths at the MAP, rad.
     result : CalibrationResult
@@ -458,8 +446,9 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         with its candidate walls and reference noise set at the MAP.
     """
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
-                           max_iter=max_iter)
-    res = _make_result(lik, sol, absolute_sigma, raise_on_failure)
+                           max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
+                           outlier_prior=outlier_prior)
+    res = make_result(lik, sol, absolute_sigma, raise_on_failure)
     res.extras["likelihood"] = lik
     # typical horizontal range of the laser points: where a finite-range ring radius would
     # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)
@@ -467,12 +456,17 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     keep = np.r_[0:7, 8:len(sol.g)]
     psi = sol.g[keep]
     cov = sol.cov[np.ix_(keep, keep)]
+    extra, var = [], []
     if lik.infer_px:
-        psi = np.append(psi, np.log(sol.sigma_px))
-        c = np.zeros((len(psi), len(psi)))
-        c[:-1, :-1] = cov
-        c[-1, -1] = 1.0 / (2 * lik.n)
-        cov = c
+        extra.append(np.log(sol.sigma_px))
+        var.append(1.0 / (2 * lik.n))
+    if lik.outliers:
+        extra.append(_logit(np.clip(sol.em[2], 1e-4, 0.5)))
+        var.append(1.0)
+    psi = np.append(psi, extra)
+    c = np.diag(np.r_[np.zeros(len(keep)), var])
+    c[:len(keep), :len(keep)] = cov
+    cov = c
     _restrict_pieces(lik, psi, cov)
     return psi, cov, sol.t[:, None], res
 

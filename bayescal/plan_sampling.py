@@ -24,8 +24,9 @@ import warnings
 import numpy as np
 
 from ._validation import resolve_rng
-from .collapsed import check_walkers, report_unconverged, sample_collapsed
+from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged, sample_collapsed
 from .floorplan import FloorPlan
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE
 from .parameters import from_identifiable
 from .plan_lsq import plan_map_start
 from .posterior import Posterior
@@ -41,7 +42,9 @@ SCENE_REQUIRED = object()
 def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_walkers=None,
                           min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                           init=None, moves=None, progress=True, on_unconverged="warn",
-                          n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED):
+                          n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED,
+                          outliers=True, outlier_scale=OUTLIER_SCALE,
+                          outlier_prior=OUTLIER_PRIOR):
     """Sample the posterior of the sensor, the walls of a rough plan and every laser point.
 
     Parameters
@@ -60,13 +63,19 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         Steps per round of the proposal tuning (default: the sampler's).
     sigma_scene : not accepted
         The plan carries its own sds; giving it is a ``TypeError``.
+    outliers, outlier_scale, outlier_prior :
+        The per-point outlier mixture (default on; ``docs/robustness.md``, "Floor
+        plans"): ``logit w`` is sampled (``noise_names`` ends with
+        ``"outlier_frac"``) and ``post.outlier_prob`` (N,) is each point's
+        posterior outlier probability.
 
     Returns
     -------
     Posterior
         ``param_samples`` (S, 8), ``point_samples`` (S, N, 3), ``wall_samples``
         (S, W, 2) of ``(d_k mm, a_k rad)``, ``noise_samples`` (S, 1) of
-        ``log sigma_px`` when inferred; ``approx_points`` is NaN (the plan
+        ``log sigma_px`` when inferred (then ``logit w`` with outliers);
+        ``outlier_prob`` (N,) or None; ``approx_points`` is NaN (the plan
         replaces them) and ``plan`` the given plan.
     """
     if not isinstance(plan, FloorPlan):
@@ -78,12 +87,15 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
-    ndim = 7 + 2 * plan.n_walls + (sigma_px is None)
+    ndim = 7 + 2 * plan.n_walls + (sigma_px is None) + bool(outliers)
     check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     psi_map, cov_map, q_map, map_res = plan_map_start(pixels, plan, sigma_px=sigma_px,
-                                                      prior=prior, init=init)
+                                                      prior=prior, init=init,
+                                                      outliers=outliers,
+                                                      outlier_scale=outlier_scale,
+                                                      outlier_prior=outlier_prior)
     lik = map_res.extras.pop("likelihood")
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
@@ -110,11 +122,12 @@ def _assemble(lik, prior, map_res, run, rng, *, sigma_px):
         n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,
         converged=diag.converged, acceptance=diag.acceptance,
         imh_acceptance=run["imh_acceptance"], diagnostics=diag, wall_samples=walls,
-        plan=lik.plan)
+        plan=lik.plan, outlier_prob=posterior_outlier_prob(lik, psi, run["q"]))
 
 
 def benchmark_plan_posterior(*, range_mm=1000.0, n_points=580, sigma_px=0.5,
-                             approx_error=0.05, n_repeats=3, min_ess=1000, rng=0):
+                             approx_error=0.05, n_repeats=3, min_ess=1000, rng=0,
+                             outliers=True):
     """Time :func:`sample_plan_posterior` to ``min_ess`` effective samples.
 
     Simulates the room (``approx_model="wall"``, its ``ds.floor_plan``) once per
@@ -131,6 +144,8 @@ def benchmark_plan_posterior(*, range_mm=1000.0, n_points=580, sigma_px=0.5,
     n_repeats : int
     min_ess : float
     rng : numpy.random.Generator, int or None
+    outliers : bool
+        The outlier mixture (default on, as in :func:`sample_plan_posterior`).
 
     Returns
     -------
@@ -150,7 +165,8 @@ def benchmark_plan_posterior(*, range_mm=1000.0, n_points=580, sigma_px=0.5,
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             post = sample_plan_posterior(ds.pixels, ds.floor_plan, sigma_px=sigma_px,
-                                         rng=seed + 1, min_ess=min_ess, progress=False)
+                                         rng=seed + 1, min_ess=min_ess, progress=False,
+                                         outliers=outliers)
         out["seconds"].append(time.perf_counter() - t0)
         out["min_ess"].append(float(np.min(post.ess)))
         out["max_tau"].append(float(np.max(post.tau)))

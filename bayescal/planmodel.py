@@ -29,20 +29,41 @@ noise level when ``sigma_px`` is inferred), as in
 incidental azimuths bias the parameters (Neyman-Scott, ``docs/bayes.md``).
 With a 1-D latent the Laplace step then gives the profile likelihood.
 
+**Outliers** (``outliers=True``, ``docs/robustness.md`` section "Floor plans"). Each
+point is an inlier with probability ``1 - w`` or an outlier whose pixel rows have
+``c`` times the noise: ``log[(1 - w) L_in + w L_out]``. The Gauss-Newton mode of a
+piece does not depend on the noise scale, so the outlier reuses each piece's
+``rr*``, ``H / C`` and ``C``. With two pixel rows and a one-dimensional latent,
+the pixel normaliser gives ``c^-2`` and the azimuth integral ``c`` (its width is
+``c`` times the inlier's, not ``c^2`` as for the 2-D latent of the per-point
+model); the Jeffreys prior, at the inlier's reference noise, is shared by both
+components and cancels in their ratio::
+
+    L_out,k = exp(-rr*_k / (2 c^2 sigma^2)) (H_k / C_k)^(-1/2) / (sqrt(2 pi) c sigma sigma_ref)
+
+Truncating it at the corner on the outlier's own scale would cut an azimuth
+range ``c`` times wider (~1 rad at ``c = 100``, half a wall), where the Laplace
+step no longer describes the integral, and would make its mass depend on the
+piece skipped by :meth:`PlanLikelihood.restrict_pieces`. So the outlier takes
+each piece untruncated, weighted by the *inlier's* piece shares ``s_k``
+(``L_out = sum_k s_k L_out,k``): the outlier lies on the wall the inlier model
+puts it on, smooth in ``psi`` and unchanged by the restriction.
+
 The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0,
-..., d_{W-1}, a_{W-1}[, log sigma_px])`` and ``q`` of shape ``(..., N, 1)``.
+..., d_{W-1}, a_{W-1}[, log sigma_px][, logit w])`` and ``q`` of shape ``(..., N, 1)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import log_ndtr
+from scipy.special import log_expit, log_ndtr
 
 from ._validation import as_pixels, check_positive
 from .camera import project_theta
 from .floorplan import FloorPlan, corner_azimuths, plan_point, wrap_angle
 from .laser import pixel_azimuth
 from .model import NOISE_BOUNDS
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac
 from .parameters import SensorParams
 
 __all__ = ["PlanLikelihood"]
@@ -66,6 +87,14 @@ class PlanLikelihood:
         candidate walls (only ``u0``, ``v0`` and the signs of ``alpha`` matter);
         default the paper's design values. The choice is robust: a point's
         candidates only need to contain its wall.
+    outliers : bool
+        Per-point outlier mixture (default False here; the calibration and
+        sampling functions default to True); ``logit w`` is then the last
+        sampled coordinate (``"outlier_frac"``, Beta prior ``outlier_prior``).
+    outlier_scale : float
+        Noise inflation ``c > 1`` of the outlier component (default 100).
+    outlier_prior : tuple of float
+        Beta(a, b) prior of the outlier fraction ``w`` (default (1, 19)).
 
     Attributes
     ----------
@@ -78,9 +107,13 @@ class PlanLikelihood:
     reference_range : float or None
         Median horizontal range (mm) of the MAP's points, set by
         :func:`bayescal.plan_lsq.plan_map_start` (``docs/floorplan.md`` section 8).
+    em_weights : ndarray, shape (N,), or None
+        The least squares' EM weights ``(1 - r) + r / c^2`` of each point's pixel
+        rows (set by :mod:`bayescal.plan_lsq`; None = unit weights).
     """
 
-    def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None):
+    def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None, outliers=False,
+                 outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
         if not isinstance(plan, FloorPlan):
             raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
         self.pixels = as_pixels(pixels, "pixels")
@@ -98,6 +131,9 @@ class PlanLikelihood:
         self.reference_range = None
         self._prior_sd = plan.param_sd
         self.primary, self.near = None, None
+        self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
+            outliers, outlier_scale, outlier_prior)
+        self.em_weights = None
 
     def assign(self, params, walls=None):
         """(Re)choose each point's candidate walls from its pixel azimuth under ``params``.
@@ -145,16 +181,25 @@ class PlanLikelihood:
     # -- protocol --------------------------------------------------------------
     @property
     def extra_names(self):
-        """Sampled coordinates after theta: the wall parameters, then ``sigma_px`` if inferred."""
-        return self.plan.param_names + (("sigma_px",) if self.infer_px else ())
+        """Sampled coordinates after theta: the wall parameters, then ``sigma_px`` if inferred,
+        then ``outlier_frac`` (sampled as ``logit w``) with the mixture."""
+        return (self.plan.param_names + (("sigma_px",) if self.infer_px else ())
+                + (("outlier_frac",) if self.outliers else ()))
 
     def split(self, psi):
-        """``psi (..., 7 + 2W [+1])`` -> theta (..., 7), walls (..., W, 2), sigma_px (...)."""
+        """``psi (..., 7 + 2W [+1] [+1])`` -> theta (..., 7), walls (..., W, 2), sigma_px (...)."""
         psi = np.asarray(psi, dtype=float)
         theta = psi[..., :7]
-        walls = psi[..., 7:7 + 2 * self.n_walls].reshape(psi.shape[:-1] + (self.n_walls, 2))
-        sig = np.exp(psi[..., -1]) if self.infer_px else np.full(psi.shape[:-1], self.sigma_px)
+        k = 7 + 2 * self.n_walls
+        walls = psi[..., 7:k].reshape(psi.shape[:-1] + (self.n_walls, 2))
+        sig = np.exp(psi[..., k]) if self.infer_px else np.full(psi.shape[:-1], self.sigma_px)
         return theta, walls, sig
+
+    def logit_frac(self, psi):
+        """``logit w`` (...) of ``psi`` (the last coordinate); needs ``outliers=True``."""
+        if not self.outliers:
+            raise ValueError("the outlier fraction needs a likelihood built with outliers=True")
+        return np.asarray(psi, dtype=float)[..., -1]
 
     def log_prior_extra(self, extra):
         """Log prior of the extras (walls normal from the plan, noise log-uniform), (...)."""
@@ -165,8 +210,10 @@ class PlanLikelihood:
         lp = np.where(np.all(w[..., 0::2] > 0, axis=-1), lp, -np.inf)
         if self.infer_px:
             lo, hi = np.log(NOISE_BOUNDS["sigma_px"])
-            x = extra[..., -1]
+            x = extra[..., 2 * self.n_walls]
             lp = np.where((x > lo) & (x < hi), lp, -np.inf)
+        if self.outliers:
+            lp = lp + log_prior_logit_frac(extra[..., -1], self.outlier_prior)
         return lp
 
     # -- geometry ----------------------------------------------------------------
@@ -270,27 +317,61 @@ class PlanLikelihood:
         q : ndarray, shape (..., N, 1)
             Mode of the dominant piece, rad.
         C : ndarray, shape (..., N, 1, 1)
-            Its precision ``J_t^T J_t / sigma_px^2``, rad^-2.
+            Its precision ``J_t^T J_t / sigma_px^2``, rad^-2; with outliers, that of
+            the moment-matched scale mixture, ``C / ((1 - r) + r c^2)`` with ``r``
+            the point's outlier probability.
         """
-        per_point, q, C = self.laplace_per_point(psi, n_iter=n_iter)
+        per_point, q, C, r = self._mixture(psi, n_iter)
+        if r is not None:
+            C = C / ((1.0 - r) + r * self.outlier_scale**2)
         total = per_point.sum(axis=-1)
-        return np.where(np.isfinite(total), total, -np.inf), q, C
+        return np.where(np.isfinite(total), total, -np.inf), q, C[..., None, None]
 
     def laplace_per_point(self, psi, *, n_iter=2):
-        """Per-point terms of :meth:`laplace`: ``log p(pixels_i | psi)`` (..., N), q, C."""
+        """Per-point terms of :meth:`laplace`: ``log p(pixels_i | psi)`` (..., N), q, C.
+
+        With outliers the term is the mixture's and ``C`` the inlier precision.
+        """
+        per_point, q, C, _ = self._mixture(psi, n_iter)
+        return per_point, q, C[..., None, None]
+
+    def outlier_prob(self, psi, q=None, *, n_iter=2):
+        """Probability that each point is an outlier given ``psi``, shape (..., N).
+
+        ``w L_out / ((1 - w) L_in + w L_out)`` with the azimuths integrated out (as
+        in :meth:`laplace`); NaN where a point leaves the model's domain. ``q`` is
+        accepted for the protocol and ignored (the start is the pixel's azimuth).
+        Requires ``outliers=True``.
+        """
+        if not self.outliers:
+            raise ValueError("outlier_prob needs a likelihood built with outliers=True")
+        return self._mixture(psi, n_iter)[-1]
+
+    def _mixture(self, psi, n_iter):
+        """Per-point log marginal (..., N), dominant mode (..., N, 1), its inlier precision
+        (..., N) and the outlier probability (..., N) (None without the mixture)."""
         _, _, sig = self.split(psi)
-        logm, ts, Cs = self._pieces(psi, n_iter=n_iter)
+        logm, ts, Cs, lo = self._pieces(psi, n_iter=n_iter)
+        # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
+        norm = -np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
         with np.errstate(invalid="ignore"):
             m = np.logaddexp(logm[0], logm[1])
-        # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
-        per_point = m - np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
+            per_point, r = m + norm, None
+            if self.outliers:
+                # untruncated outlier pieces weighted by the inlier's piece shares (module doc)
+                lout = (np.logaddexp(logm[0] - m + lo[0], logm[1] - m + lo[1])
+                        - np.log(self.outlier_scale) + norm)
+                x = self.logit_frac(psi)[..., None]
+                a, b = log_expit(-x) + per_point, log_expit(x) + lout
+                per_point = np.logaddexp(a, b)
+                with np.errstate(over="ignore"):
+                    r = 1.0 / (1.0 + np.exp(a - b))
         pick = logm[1] > logm[0]
-        q = np.where(pick, ts[1], ts[0])[..., None]
-        C = np.where(pick, Cs[1], Cs[0])[..., None, None]
-        return per_point, q, C
+        return per_point, np.where(pick, ts[1], ts[0])[..., None], np.where(pick, Cs[1], Cs[0]), r
 
     def _pieces(self, psi, *, n_iter):
-        """Each point's two truncated Laplace pieces: log masses, modes, precisions.
+        """Each point's two truncated Laplace pieces: log masses, modes, precisions, and the
+        outlier's untruncated log masses (up to the shared constants).
 
         Each is a pair (piece on wall ``wall_pair[:, 0]``, on ``wall_pair[:, 1]``) of
         arrays (..., N). After :meth:`restrict_pieces`, the non-primary piece is
@@ -312,7 +393,7 @@ class PlanLikelihood:
                             sa[..., near, q], c[..., near], inv_s2, n_iter, sign=2 * q - 1,
                             sel=near)
         full = [np.full_like(out[0], -np.inf), np.full_like(out[0], np.nan),
-                np.full_like(out[0], np.nan)]
+                np.full_like(out[0], np.nan), np.full_like(out[0], -np.inf)]
         for f, o in zip(full, other, strict=True):
             f[..., near] = o
         return tuple((np.where(p == 0, a, b), np.where(p == 0, b, a))
@@ -324,19 +405,24 @@ class PlanLikelihood:
         return tuple(zip(*both, strict=True))
 
     def _piece(self, theta, t0, d, ca, sa, c, inv_s2, n_iter, *, sign, sel):
-        """One truncated Laplace piece per point (pixels ``sel``): log mass, mode, precision."""
+        """One truncated Laplace piece per point (pixels ``sel``): log mass, mode, precision,
+        and the outlier's untruncated log mass ``-rr / (2 c^2 sigma^2) - log(H / C) / 2``."""
         with np.errstate(invalid="ignore", divide="ignore"):
             rr, ts_, C, lhc = self._fit_piece(theta, t0, d, ca, sa, n_iter, sel=sel)
             side = wrap_angle(ts_ - c) * sign                       # > 0 inside the piece
             lm = (-0.5 * rr * inv_s2 - 0.5 * lhc
                   + log_ndtr(side * np.sqrt(C * np.exp(lhc) * inv_s2)))
-        return np.where(np.isfinite(lm), lm, -np.inf), ts_, C * inv_s2
+            lo = -0.5 * rr * inv_s2 / self.outlier_scale**2 - 0.5 * lhc
+        return (np.where(np.isfinite(lm), lm, -np.inf), ts_, C * inv_s2,
+                np.where(np.isfinite(lm), lo, -np.inf))
 
     def point_log_density(self, psi, q):
         """Exact per-point log density of the azimuths ``q`` (..., N, 1) given ``psi`` (..., N).
 
         Likelihood times Jeffreys prior, up to a constant per point (used by the
-        sampler's independence Metropolis-Hastings correction of point draws).
+        sampler's independence Metropolis-Hastings correction of point draws). With
+        outliers, the mixture ``(1 - w) N(sigma) + w N(c sigma)`` of the two pixel
+        rows (the outlier's normaliser ``c^-2`` included).
         """
         theta, walls, sig = self.split(psi)
         dd, aa, c = self._pair_walls(walls)
@@ -346,8 +432,12 @@ class PlanLikelihood:
         with np.errstate(invalid="ignore", divide="ignore"):
             u, v, du, dv = self._pixel_terms(theta, t, d, np.cos(a), np.sin(a))
             rr = (u - self.pixels[:, 0]) ** 2 + (v - self.pixels[:, 1]) ** 2
-            out = (-0.5 * rr / sig[..., None] ** 2
-                   + 0.5 * np.log((du * du + dv * dv)) - np.log(self.ref_sigma_px))
+            lin = -0.5 * rr / sig[..., None] ** 2
+            if self.outliers:
+                c, x = self.outlier_scale, self.logit_frac(psi)[..., None]
+                lin = np.logaddexp(log_expit(-x) + lin,
+                                   log_expit(x) + lin / c**2 - 2 * np.log(c))
+            out = lin + 0.5 * np.log((du * du + dv * dv)) - np.log(self.ref_sigma_px)
         return np.where(np.isfinite(out), out, -np.inf)
 
     # -- least-squares form ----------------------------------------------------------

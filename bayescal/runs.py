@@ -147,7 +147,7 @@ def _least_squares(job):
         return bc.calibrate_sequential(job.calib, **kw)
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
-                                         prior=job.prior, **kw)
+                                         prior=job.prior, outliers=job.outliers, **kw)
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, **kw)

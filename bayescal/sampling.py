@@ -43,6 +43,7 @@ from .collapsed import (
     report_unconverged,
     sample_collapsed,
 )
+from .collapsed import posterior_outlier_prob as _outlier_prob
 from .diagnostics import integrated_time
 from .floorplan import FloorPlan
 from .model import NOISE_BOUNDS, LaserLikelihood
@@ -119,8 +120,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         outlier with 100x the noise; ``post.outlier_prob`` (N,) gives each
         row's posterior probability of being one. On clean data it moves the
         posterior by a few hundredths of a sd (``tests/test_sampling.py``).
-        ``False``: the pure model. Not available yet with a
-        :class:`~bayescal.FloorPlan` (ignored there).
+        ``False``: the pure model. The same with a :class:`~bayescal.FloorPlan`.
 
     Returns
     -------
@@ -140,9 +140,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     if isinstance(approx_points, FloorPlan):          # walls in place of points
-        # the floor-plan likelihood has no outlier mixture yet (docs/floorplan.md)
-        kw = {k: v for k, v in locals().items()
-              if k not in ("pixels", "approx_points", "outliers")}
+        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
@@ -209,18 +207,6 @@ def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
         converged=diag.converged, acceptance=diag.acceptance,
         imh_acceptance=run["imh_acceptance"], diagnostics=diag,
         outlier_prob=_outlier_prob(lik, psi, run["q"]))
-
-
-def _outlier_prob(lik, psi, q, batch=256):
-    """Posterior probability (N,) that each row is an outlier: the mean over draws of its
-    conditional probability given the globals (None without the mixture)."""
-    if not getattr(lik, "outliers", False):
-        return None
-    total = np.zeros(lik.n)
-    for lo in range(0, len(psi), batch):
-        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
-        total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
-    return total / len(psi)
 
 
 def _check_noise_bounds(post):

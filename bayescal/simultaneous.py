@@ -105,7 +105,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         ``outlier_scale`` times the noise; solved by EM (weighted Schur LM).
         ``result.outlier_prob`` (N,) gives each point's outlier probability.
         On clean data it changes nothing that matters (``docs/robustness.md``).
-        Ignored with ``estimate_points=False``.
+        Ignored with ``estimate_points=False``. With a FloorPlan the same mixture
+        (``docs/robustness.md``, "Floor plans").
     outlier_scale : float, optional
         Noise inflation of the outlier component (default 100).
     outlier_prior : tuple of float, optional
@@ -135,7 +136,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                             "(the plan carries its own sds); leave them out")
         return calibrate_plan(pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
                               absolute_sigma=absolute_sigma, max_iter=max_iter,
-                              raise_on_failure=raise_on_failure)
+                              raise_on_failure=raise_on_failure, outliers=outliers,
+                              outlier_scale=outlier_scale, outlier_prior=outlier_prior)
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")

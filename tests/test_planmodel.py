@@ -165,15 +165,18 @@ def test_map_start_for_the_sampler():
     psi, cov, q, res = plan_map_start(ds.pixels, ds.floor_plan, sigma_px=None)
     lik = res.extras["likelihood"]
     W = plan.n_walls
-    assert psi.shape == (7 + 2 * W + 1,) and cov.shape == (len(psi), len(psi))
+    # (theta, walls, log sigma_px, logit w): the outlier mixture is on by default
+    assert psi.shape == (7 + 2 * W + 2,) and cov.shape == (len(psi), len(psi))
+    assert lik.extra_names[-2:] == ("sigma_px", "outlier_frac")
     assert q.shape == (580, 1)
-    assert np.exp(psi[-1]) == pytest.approx(0.5, rel=0.1)     # 580 dof: sd ~3 %
+    assert np.exp(psi[-2]) == pytest.approx(0.5, rel=0.1)     # 580 dof: sd ~3 %
+    assert cov[-1, -1] == 1.0 and np.all(cov[-1, :-1] == 0)
     np.linalg.cholesky(cov)
     ll, q2, _ = lik.laplace(psi)
     assert np.isfinite(ll)
     # the conditional modes are the MAP's azimuths, except where a pixel's best fit is
     # the kink at a corner (the MAP sits on it, each piece's own mode lies beyond it)
-    corner = corner_azimuths(psi[7:-1:2], psi[8:-1:2])[lik.corner]
+    corner = corner_azimuths(psi[7:7 + 2 * W:2], psi[8:7 + 2 * W:2])[lik.corner]
     away = np.abs(wrap_angle(q[:, 0] - corner)) > 1e-3
     assert away.mean() > 0.95
     np.testing.assert_allclose(q2[away], q[away], atol=1e-6)
@@ -278,10 +281,15 @@ def test_plan_inconsistent_with_the_pixels_raises():
     d[2] *= 1.4
     wrong = FloorPlan.from_lines(d, true_plan.angles, distance_sd=20.0, angle_sd=0.01)
     with pytest.raises(bc.ConvergenceError, match="far off the plan: wall chi-square"):
-        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5)
-    res = bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, raise_on_failure=False)
+        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, outliers=False)
+    res = bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5, raise_on_failure=False,
+                                    outliers=False)
     assert not res.converged and res.extras["check"]["p_wall"] < 1e-6
     assert res.extras["check"]["worst"][0] == "d_2"
+    # the outlier mixture would explain the wall away by flagging its points: the wall's
+    # share of flagged points fails the calibration just as loudly
+    with pytest.raises(bc.ConvergenceError, match="points on wall 2 are flagged as outliers"):
+        bc.calibrate_simultaneous(ds.pixels, wrong, sigma_px=0.5)
     # the true plan passes on the same pixels
     assert bc.calibrate_simultaneous(ds.pixels, true_plan, sigma_px=0.5).converged
 
@@ -341,3 +349,107 @@ def test_shallow_corner_is_moved_across_the_points(seed):
     z = (res.extras["theta"] - ds.params.to_identifiable()) \
         / np.sqrt(np.diag(res.covariance_identifiable))
     assert res.converged and np.all(np.abs(z) < 3), z
+
+
+def test_mixture_laplace_matches_numerical_integration(rng):
+    """The outlier mixture per point against a 1-D quadrature of its exact integrand:
+    ``c = 3`` (outlier width ~0.03 rad, where the Laplace step is accurate), points far
+    from corners, some pixels moved 1-4 px so that both components matter."""
+    ds, plan = _room(n_points=580, rng=1)
+    theta = ds.params.to_identifiable()
+    probe = PlanLikelihood(ds.pixels, plan, sigma_px=0.5)
+    t_pix = probe._start(theta[None])[0]
+    far = np.abs(wrap_angle(t_pix - plan.corner_azimuths()[probe.corner])) > 0.3
+    pick = rng.choice(np.flatnonzero(far), 20, replace=False)
+    pix = ds.pixels[pick].copy()
+    pix[:12, 1] += np.linspace(1.0, 4.0, 12)          # 2-8 sd: outlier prob. from ~0 to ~1
+    lik = PlanLikelihood(pix, plan, sigma_px=0.5, outliers=True, outlier_scale=3.0)
+    x = np.log(0.1 / 0.9)
+    psi = np.concatenate([theta, plan.param_nominal, [x]])
+    per_point, q, _ = lik.laplace_per_point(psi, n_iter=3)
+    r = lik.outlier_prob(psi)
+    grid = q[:, 0][:, None] + np.linspace(-0.3, 0.3, 60001)[None, :]       # (n, G)
+
+    def integral(p):
+        lp = lik.point_log_density(p, grid.T[..., None]).T
+        m = lp.max(axis=1, keepdims=True)
+        return m[:, 0] + np.log(np.trapezoid(np.exp(lp - m), grid, axis=1))
+
+    const = -2 * np.log(0.5) - np.log(2 * np.pi)
+    brute = integral(psi) + const
+    # x -> +inf: the outlier component alone, log w L_out
+    brute_out = integral(np.concatenate([theta, plan.param_nominal, [60.0]])) + const \
+        + np.log(0.1)
+    assert 0.05 < np.median(r) < 0.95 and r.min() < 0.05 and r.max() > 0.95
+    # the Laplace error of each component: ~1e-3 nat for this near-Gaussian integrand
+    np.testing.assert_allclose(per_point, brute, atol=3e-3)
+    np.testing.assert_allclose(r, np.exp(brute_out - brute), atol=3e-3)
+    # the moment-matched precision of the point draws: the inlier's, widened by the mixture
+    _, _, C = lik.laplace(psi)
+    _, _, C_in = lik.laplace_per_point(psi)
+    np.testing.assert_allclose(C, C_in / ((1 - r) + r * 9.0)[:, None, None], rtol=1e-12)
+
+
+def test_outlier_options_and_coordinates():
+    ds, plan = _room(n_points=30)
+    with pytest.raises(ValueError, match="outlier_scale must be > 1"):
+        PlanLikelihood(ds.pixels, plan, sigma_px=None, outliers=True, outlier_scale=0.5)
+    with pytest.raises(TypeError, match="outliers must be True or False"):
+        PlanLikelihood(ds.pixels, plan, sigma_px=None, outliers="yes")
+    lik = PlanLikelihood(ds.pixels, plan, sigma_px=None, outliers=True)
+    assert lik.extra_names[-2:] == ("sigma_px", "outlier_frac")
+    psi = _psi(ds, plan, [np.log(0.7), -3.0])
+    assert lik.split(psi)[2] == pytest.approx(0.7)        # sigma_px by index, not psi[-1]
+    e = psi[7:]
+    base = PlanLikelihood(ds.pixels, plan, sigma_px=None).log_prior_extra(e[:-1])
+    # logit w under Beta(1, 19): 1 * log w + 19 * log(1 - w) - log B(1, 19)
+    w = 1 / (1 + np.exp(3.0))
+    expect = np.log(w) + 19 * np.log1p(-w) - stats.beta(1, 19).logpdf(0.5) \
+        + stats.beta(1, 19).logpdf(0.5) - np.log(1 / 19)
+    assert lik.log_prior_extra(e) == pytest.approx(base + expect)
+    with pytest.raises(ValueError, match="outliers=True"):
+        PlanLikelihood(ds.pixels, plan, sigma_px=None).outlier_prob(psi[:-1])
+
+
+def _gross(ds, i, kind):
+    """Pixels of ``ds`` with point ``i`` grossly wrong: its pixel moved 30 px, or the laser
+    point 40 % beyond its wall (same azimuth, its pixel's noise kept)."""
+    from bayescal.camera import project_theta
+    from bayescal.floorplan import plan_point
+
+    pix = ds.pixels.copy()
+    if kind == "pixel":
+        pix[i, 1] += 30.0
+        return pix
+    theta, P = ds.params.to_identifiable(), ds.points[i]
+    t, rho = np.arctan2(P[1], P[0]), np.hypot(P[0], P[1])
+    Q = plan_point(theta, np.array([t]), np.array([1.4 * rho]), np.array([t]))
+    pix[i] = project_theta(theta, Q)[0][0] + ds.pixels[i] - project_theta(theta, P[None])[0][0]
+    return pix
+
+
+@pytest.mark.parametrize("kind", ["pixel", "off_wall"])
+def test_em_flags_a_gross_error_and_keeps_the_sensor(kind):
+    """One gross error among 580 points: the EM flags it (prob > 0.9, the others < 0.5) and
+    the sensor stays within 1 sd of the clean fit; the pure model is pulled beyond 1 sd
+    (measured: 1.6 sd and 1.4 sd)."""
+    ds = bc.simulate_room(range_mm=1000.0, n_points=580, sigma_px=0.5, approx_error=0.05,
+                          approx_model="wall", rng=0)
+    i = 100
+    pix = _gross(ds, i, kind)
+    clean = bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.5)
+    sd = np.sqrt(np.diag(clean.covariance_identifiable))
+    res = bc.calibrate_simultaneous(pix, ds.floor_plan, sigma_px=0.5)
+    assert res.converged and res.outlier_prob.shape == (580,)
+    assert res.outlier_prob[i] > 0.9
+    assert np.all(np.delete(res.outlier_prob, i) < 0.5)
+    assert 0 < res.extras["noise"]["outlier_frac"] < 0.05 and res.extras["em_rounds"] >= 2
+    z = (res.params.to_identifiable() - clean.params.to_identifiable()) / sd
+    assert np.all(np.abs(z) < 1.0)
+    pure = bc.calibrate_simultaneous(pix, ds.floor_plan, sigma_px=0.5, outliers=False,
+                                     raise_on_failure=False)
+    assert pure.outlier_prob is None and "outlier_frac" not in pure.extras["noise"]
+    z = (pure.params.to_identifiable() - clean.params.to_identifiable()) / sd
+    assert np.max(np.abs(z)) > 1.0
+    # the pixel check sees the EM-weighted residuals: the outlier does not fail it
+    assert res.extras["check"]["p_pixels"] > 1e-3 > pure.extras["check"]["p_pixels"]
