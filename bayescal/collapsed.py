@@ -200,7 +200,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     n_point_mh, n_iter :
         As in :func:`sample_posterior`.
     n_tune : int, optional
-        Steps per tuning round (default 60 with a gradient, else 150).
+        Steps per tuning round (default 60 with a gradient, else
+        ``max(150, 10 ndim)``).
 
     Returns
     -------
@@ -215,10 +216,15 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     ndim = len(psi_map)
     n_walkers = default_walkers(ndim) if n_walkers is None else int(n_walkers)
     # the ring radius at the points' median range (docs/bayes.md section 3)
-    coords = Coordinates(getattr(lik, "reference_range", None))
+    names = tuple(lik.extra_names)
+    coords = Coordinates(getattr(lik, "reference_range", None),
+                         7 + names.index("outlier_frac") if "outlier_frac" in names else None)
     target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
-    if n_tune is None:                      # HMC mixes fast: short tuning rounds suffice
-        n_tune = 60 if target.has_gradient and moves is None else 150
+    if n_tune is None:
+        # HMC mixes fast: short tuning rounds suffice. Without it the independence
+        # proposal's covariance is fitted from the tuning chain, and ~10 ndim steps per
+        # round are needed for a fit it can use in many dimensions (docs/bayes.md s. 3)
+        n_tune = 60 if target.has_gradient and moves is None else max(150, 10 * ndim)
     n_tune = int(n_tune)
     J = coords.jacobian(psi_map)
     s_map, cov_s = coords.to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import expit, logit
 
 from .diagnostics import ensemble_ess, integrated_time
 
@@ -125,16 +126,24 @@ class Coordinates:
     rho_ref : float, optional
         Horizontal range (mm) at which the ring radius is taken: the median range
         of the MAP's points; ``inf`` (default) is the asymptotic ring.
+    frac_index : int, optional
+        Index in psi of ``logit w``, the outlier fraction, if sampled. It is sampled
+        as ``w^(1/3)``: with few or no outliers the posterior of w is close to a
+        Gamma with shape ~1, whose cube root is nearly normal (Wilson-Hilferty),
+        while ``logit w = log w + ...`` is skewed (skewness ~ -1.1) with an
+        exponential left tail, which a fitted independence proposal matches badly
+        (``docs/bayes.md`` section 3).
     """
 
-    def __init__(self, rho_ref=np.inf):
+    def __init__(self, rho_ref=np.inf, frac_index=None):
         rho_ref = float(np.inf if rho_ref is None else rho_ref)
         if not rho_ref > 0:
             raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
         self.rho_ref = rho_ref
+        self.frac_index = None if frac_index is None else int(frac_index)
 
     def __repr__(self):
-        return f"Coordinates(rho_ref={self.rho_ref:g})"
+        return f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index})"
 
     def to_sampling(self, psi):
         """psi (..., d) -> s (..., d)."""
@@ -143,22 +152,33 @@ class Coordinates:
         s[..., 1] *= k
         s[..., 2] *= k
         s[..., 5] *= depth_scale(s)
+        if self.frac_index is not None:
+            s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
         return s
 
     def from_sampling(self, s):
-        """Inverse of :meth:`to_sampling`."""
+        """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
         psi = np.array(s, dtype=float)
         psi[..., 5] /= depth_scale(psi)
         k = ring_scale(psi, self.rho_ref)
         psi[..., 1] /= k
         psi[..., 2] /= k
+        if self.frac_index is not None:
+            y = psi[..., self.frac_index]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
         return psi
 
     def log_jacobian(self, psi):
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            return (-2.0 * np.log(ring_scale(psi, self.rho_ref))
-                    - np.log(np.abs(depth_scale(psi))))
+            out = (-2.0 * np.log(ring_scale(psi, self.rho_ref))
+                   - np.log(np.abs(depth_scale(psi))))
+            if self.frac_index is not None:
+                # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
+                y = np.cbrt(expit(psi[..., self.frac_index]))
+                out = out + np.log(3.0) - np.log(y) - np.log1p(-y**3)
+        return out
 
     def jacobian(self, psi, eps=1e-7):
         """``d s / d psi`` at one psi (d,) by central differences, shape (d, d)."""

@@ -234,11 +234,14 @@ def test_collapsed_gradient_matches_finite_differences(noise):
 
 
 @pytest.mark.parametrize("rho_ref", [np.inf, 850.0, 5000.0])
-def test_sampling_coordinates_round_trip_and_jacobian(rho_ref):
+@pytest.mark.parametrize("frac", [None, 0.003, 0.2])
+def test_sampling_coordinates_round_trip_and_jacobian(rho_ref, frac):
     from bayescal.sampler_steps import Coordinates
 
-    c = Coordinates(rho_ref)
+    c = Coordinates(rho_ref, None if frac is None else 8)
     psi = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    if frac is not None:                 # a noise level, then logit w
+        psi = np.concatenate([psi, [np.log(0.4), np.log(frac / (1 - frac))]])
     np.testing.assert_allclose(c.from_sampling(c.to_sampling(psi)), psi, rtol=1e-12)
     J = c.jacobian(psi)                                         # d s / d psi
     np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
