@@ -138,6 +138,7 @@ def three_methods(ds, rng, *, bayes):
             out["bayes_converged"] = bool(post.converged)
             out["bayes_tau_max"] = float(np.max(post.tau))
             out["bayes_steps"] = int(post.n_steps)
+            out["bayes_map_mm"], _, _ = point_errors(post.map_points, ds.points)
         except Exception as exc:  # noqa: BLE001 (a failed chain is a result, recorded)
             out["bayes_failed"] = f"{type(exc).__name__}: {exc}"
             out["bayes_converged"] = False

@@ -15,8 +15,8 @@ same relative error: each wall's distance off by one draw of
 ``approx_error * d_k`` and its orientation by one draw of ``approx_error`` rad
 (both floored at 0.1 %), which moves a wall end at lateral offset ``s`` by about
 ``approx_error * s``, i.e. the same relative error for ``s`` comparable with ``d_k``.
-``--plan-bayes`` adds the floor-plan posterior mean
-(``bc.sample_posterior(pixels, plan, ...)``).
+The floor-plan posterior mean (``bc.sample_posterior(pixels, plan, ...)``) is a column
+too (``--skip-plan-bayes`` drops it, ``--skip-bayes`` drops both posteriors).
 
 Writes ``fig9.json`` (keys ``approx_error_percent``, ``sequential_mm``,
 ``simultaneous_mm``, ``bayes_mm``, ``plan_mm``, ``plan_bayes_mm``: means over
@@ -26,7 +26,7 @@ triangulated-simultaneous and approximate-point errors, and every trial) and
 
 Usage::
 
-    python studies/fig9.py --out out/fig9 [--quick] [--plan-bayes] [--workers 2]
+    python studies/fig9.py --out out/fig9 [--quick] [--skip-plan-bayes] [--workers 2]
                            [--scheduler ADDRESS]
 """
 
@@ -59,10 +59,12 @@ RANGE_MM = 5000.0
 FILES = ("fig9.json", "fig9.png")
 #: approximation error levels (%) and trials per level, per mode
 LEVELS = {"full": (np.arange(0.0, 5.01, 1.0), 4),
-          "quick": (np.array([0.0, 2.5, 5.0]), 1),
+          "quick": (np.array([0.0, 2.5, 5.0]), 4),
           "smoke": (np.array([0.0, 5.0]), 1)}
 KEYS = ("sequential_mm", "simultaneous_mm", "bayes_mm", "simultaneous_triangulated_mm",
         "approx_mm", "plan_mm", "plan_triangulated_mm", "plan_bayes_mm")
+#: chain length limit of the floor-plan posterior (per mode; the per-point one's if larger)
+PLAN_MAX_STEPS = {"full": 12000, "quick": 12000}
 #: floor of the plan's relative distance error and angle sd (rad) at 0 % approximation error
 PLAN_FLOOR = 1e-3
 
@@ -134,6 +136,9 @@ def plan_columns(ds, rng, *, bayes):
             out["plan_bayes_mm"], out["plan_bayes_median_mm"], _ = point_errors(post.point_mean,
                                                                         ds.points)
             out["plan_bayes_converged"] = bool(post.converged)
+            out["plan_bayes_tau_max"] = float(np.max(post.tau))
+            out["plan_bayes_steps"] = int(post.n_steps)
+            out["plan_bayes_map_mm"], _, _ = point_errors(post.map_points, ds.points)
         except Exception as exc:  # noqa: BLE001 (a failed chain is a result, recorded)
             out["plan_bayes_failed"] = f"{type(exc).__name__}: {exc}"
             out["plan_bayes_converged"] = False
@@ -144,11 +149,22 @@ def _specs(mode, sigma_px, *, plan_bayes=False, skip_bayes=False, plan_angle=Non
     levels, n_rep = LEVELS[mode]
     n_points = 60 if mode == "smoke" else 580
     bayes = None if skip_bayes else bayes_settings(mode)
+    # the floor-plan posterior has 2 more dimensions per wall (its default ensemble size) and
+    # mixes slower (max tau 7-40 steps at 0-2.5 %, ~100 at 5 %: docs/studies.md), so longer
+    # chains than the per-point one outside the smoke mode
+    plan = {k: v for k, v in bayes_settings(mode).items() if k != "n_walkers"}
+    plan["max_steps"] = max(plan["max_steps"], PLAN_MAX_STEPS.get(mode, 0))
     return [{"level": i, "approx_error": float(lv) / 100, "n_points": n_points,
              "sigma_px": sigma_px, "bayes": bayes,
-             "plan_bayes": bayes_settings(mode) if plan_bayes else None,
+             "plan_bayes": plan if plan_bayes and not skip_bayes else None,
              "plan_angle_sd": plan_angle}
             for i, lv in enumerate(levels) for _ in range(n_rep)]
+
+
+def _unconverged(trials, prefix, n_levels):
+    """Per level: chains of ``prefix`` ("bayes" or "plan_bayes") run and not converged."""
+    return [sum(f"{prefix}_converged" in t and not t[f"{prefix}_converged"] for t in trials
+                if t["level"] == lv) for lv in range(n_levels)]
 
 
 def _table(trials, n_levels):
@@ -186,7 +202,7 @@ def plot(levels, table, title, path):
               ("plan_bayes_mm", "floor plan, posterior mean", "tab:red", "v-"))
     for key, label, color, fmt in styles:
         if not np.any(np.isfinite(table[key])):
-            continue                                  # a column not run (--plan-bayes)
+            continue                                  # a column not run (--skip-bayes)
         ax.errorbar(levels, table[key], yerr=table[key.replace("_mm", "_sd_mm")], fmt=fmt,
                     color=color, label=label, capsize=3)
     ax.set_xlabel("approximation error of the 3D points / of the floor plan (%)")
@@ -200,11 +216,10 @@ def plot(levels, table, title, path):
 def _add_arguments(parser):
     parser.add_argument("--sigma-px", type=float, default=0.1,
                         help="pixel noise of every trial, px (default: 0.1)")
-    parser.add_argument("--plan-bayes", action="store_true",
-                        help="also sample the floor-plan posterior (its posterior mean points "
-                             "as a column)")
+    parser.add_argument("--skip-plan-bayes", action="store_true",
+                        help="skip the floor-plan posterior (sampled by default)")
     parser.add_argument("--skip-bayes", action="store_true",
-                        help="skip the per-point posterior (least-squares columns only)")
+                        help="skip both posteriors (least-squares columns only)")
     parser.add_argument("--plan-angle-sd", type=float, default=None, metavar="RAD",
                         help="sd of the plan's wall orientations, rad (default: the relative "
                              "approximation error of the level, floored at 0.001)")
@@ -213,7 +228,8 @@ def _add_arguments(parser):
 def run(args, out):
     if args.plan_angle_sd is not None and not args.plan_angle_sd > 0:
         raise SystemExit(f"error: --plan-angle-sd must be > 0, got {args.plan_angle_sd}")
-    specs = _specs(args.mode, args.sigma_px, plan_bayes=args.plan_bayes,
+    specs = _specs(args.mode, args.sigma_px,
+                   plan_bayes=not (args.skip_plan_bayes or args.skip_bayes),
                    skip_bayes=args.skip_bayes, plan_angle=args.plan_angle_sd)
     levels = LEVELS[args.mode][0]
     trials = run_trials(fig9_trial, specs, seed=args.seed, workers=args.workers,
@@ -222,22 +238,25 @@ def run(args, out):
     result = {"study": "fig9", "mode": args.mode, "seed": args.seed, "range_mm": RANGE_MM,
               "n_points": specs[0]["n_points"], "sigma_px": args.sigma_px,
               "trials_per_level": LEVELS[args.mode][1], "bayes_settings": specs[0]["bayes"],
+              "plan_bayes_settings": specs[0]["plan_bayes"],
               "perturb_scale_prior_sd": PERTURB_SCALE, "scene_floor_mm": SCENE_FLOOR_MM,
               "plan_error": "distance sd approx_error * d_k, angle sd "
                             + (f"{args.plan_angle_sd:g} rad" if args.plan_angle_sd else
                                "approx_error rad") + f", floored at {PLAN_FLOOR:g}",
-              "plan_bayes": bool(args.plan_bayes), "skip_bayes": bool(args.skip_bayes),
+              "plan_bayes": specs[0]["plan_bayes"] is not None,
+              "skip_bayes": bool(args.skip_bayes),
               "approx_error_percent": levels, **table,
-              "bayes_unconverged": [sum(not t.get("bayes_converged", False) for t in trials
-                                        if t["level"] == lv) for lv in range(len(levels))],
+              "bayes_unconverged": _unconverged(trials, "bayes", len(levels)),
+              "plan_bayes_unconverged": _unconverged(trials, "plan_bayes", len(levels)),
               "trials": trials}
     write_json(out / FILES[0], result)
     plot(levels, table, f"fig9: {RANGE_MM:.0f} mm room, {specs[0]['n_points']} points, "
                         f"{args.sigma_px:g} px ({args.mode})", out / FILES[1])
     print(f"{'approx %':>8} {'seq':>8} {'sim':>8} {'bayes':>8} {'sim-tri':>8} {'approx':>8} "
-          f"{'plan':>8} {'plan-tri':>8} {'plan-bay':>8}")
+          f"{'plan':>8} {'plan-tri':>8} {'plan-bay':>8}  unconverged (bayes, plan-bayes)")
     for i, lv in enumerate(levels):
-        print(f"{lv:8.1f} " + " ".join(f"{table[k][i]:8.1f}" for k in KEYS))
+        print(f"{lv:8.1f} " + " ".join(f"{table[k][i]:8.1f}" for k in KEYS)
+              + f"  {result['bayes_unconverged'][i]}, {result['plan_bayes_unconverged'][i]}")
     failed = [t["plan_bayes_failed"] for t in trials if t.get("plan_bayes_failed")]
     if failed:
         print(f"floor-plan posterior failed in {len(failed)} of {len(trials)} trials: "

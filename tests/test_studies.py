@@ -45,6 +45,11 @@ def test_fig9_keys_and_files(fig9_serial):
     assert (out / "fig9.png").stat().st_size > 10_000
     # the approximate points at 5 % are worse than at 0 % (their error grows with the level)
     assert res["approx_mm"][1] > res["approx_mm"][0]
+    # the floor-plan columns run by default (least squares and posterior), one chain each
+    assert res["plan_bayes"] is True
+    assert all(np.isfinite(v) and v > 0 for v in res["plan_mm"] + res["plan_bayes_mm"])
+    assert len(res["plan_bayes_unconverged"]) == len(res["approx_error_percent"])
+    assert all(t["plan_bayes_failed"] is None for t in res["trials"])
 
 
 def test_fig9_same_results_with_two_processes(fig9_serial, tmp_path):
