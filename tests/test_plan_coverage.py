@@ -8,8 +8,17 @@ are a measurement of the sensor). The 90 % and 95 % intervals of the 7 identifia
 parameters, of the 2W wall parameters and of the points' coordinates must hold the
 truth within the 99 % binomial band of M replications.
 
-``BAYESCAL_PLAN_COVERAGE_M`` sets M (default 200); ``BAYESCAL_PLAN_COVERAGE_MCMC=1``
-checks the MCMC intervals as well as the Laplace ones (about a minute per replication).
+``BAYESCAL_PLAN_COVERAGE_MCMC=1`` checks the MCMC intervals (``sample_posterior``, 400
+draws, ``min_ess=300``) as well as the Laplace ones, and that the chains converged.
+``BAYESCAL_PLAN_COVERAGE_M`` sets M: default 200 (Laplace only) or 80 (with MCMC).
+
+Time on the 2-core machine, one process: a Laplace-only replication (both least
+squares) is ~0.5 s, so the default run is ~3-4 min for both rooms; with MCMC a
+replication is 5-9 s idle and median 13 s at load 5 (the chain is 95 % of it), so M = 80
+is ~12-18 min per room, ~25-35 min for both (measured: 43 min at load 5-6).
+Known failure of the MCMC mode (``docs/floorplan.md`` s. 9.1): in the 5000 mm room the
+shallow-corner seeds 1044 and 1063 leave their chains unconverged at the step cap (2-4
+min each), which is more than 2 % of M = 80; coverage stays inside the band.
 """
 
 import os
@@ -22,8 +31,8 @@ from scipy import stats
 import bayescal as bc
 from bayescal.floorplan import FloorPlan
 
-M = int(os.environ.get("BAYESCAL_PLAN_COVERAGE_M", "200"))
 MCMC = os.environ.get("BAYESCAL_PLAN_COVERAGE_MCMC", "0") == "1"
+M = int(os.environ.get("BAYESCAL_PLAN_COVERAGE_M", "80" if MCMC else "200"))
 ROOMS = {"small": (1000.0, 0.5), "large": (5000.0, 0.1)}
 LEVELS = (0.9, 0.95)
 
@@ -81,8 +90,9 @@ def replication(range_mm, sigma_px, seed, *, mcmc=False):
             warnings.simplefilter("ignore")
             post = bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=sigma_px, prior=prior,
                                        rng=seed, min_ess=300, n_samples=400, progress=False)
-        samples = {"theta": post.theta_samples, "points": post.point_samples.reshape(400, -1),
-                   "walls": post.wall_samples.reshape(400, -1)}
+        n = post.theta_samples.shape[0]
+        samples = {"theta": post.theta_samples, "points": post.point_samples.reshape(n, -1),
+                   "walls": post.wall_samples.reshape(n, -1)}
         out.update({("mcmc", k): _quantile_inside(samples[k], truth[k]) for k in samples})
         out[("mcmc", "converged")] = np.array([[post.converged]])
     return out
@@ -116,15 +126,23 @@ def coverage_table(range_mm, sigma_px, m, *, mcmc=False, seed0=1000):
 def test_floor_plan_intervals_cover(room):
     """90 % / 95 % intervals of theta, walls and points within the 99 % band of M.
 
-    Per interval the false-failure rate is 1 %; theta and the walls are tested one
-    parameter at a time (7 + 14 intervals per level and method), the points pooled over
-    coordinates (3N correlated indicators: the band of M is the right one only for
-    each single coordinate, so the pooled fraction is checked against it).
+    Per interval and level the false-failure rate is at most 1 %; theta and the walls are
+    tested one parameter at a time (7 + 14 intervals per level and method), the points
+    pooled over coordinates (3N correlated indicators: the band of M is the right one
+    only for each single coordinate, so the pooled fraction is checked against it).
+    Not Bonferroni-corrected: were the 21 parameter intervals independent, a room
+    would fail by chance with probability ~19 % at M = 200 and ~12 % at M = 80 (both
+    levels, simulated); they are correlated (xi, gamma_u, gamma_v move together, and
+    the MCMC checks nearly repeat the Laplace ones), so the rate is lower. With MCMC,
+    least squares failures and unconverged chains may each be at most 2 % of M.
     """
     range_mm, sigma_px = ROOMS[room]
     table = coverage_table(range_mm, sigma_px, M, mcmc=MCMC)
     assert table["failed"] <= 0.02 * M            # least squares that did not converge
     methods = ("laplace", "mcmc") if MCMC else ("laplace",)
+    if MCMC:
+        n_ok = M - table["failed"]
+        assert table[("mcmc", "converged")].item() * n_ok >= n_ok - 0.02 * M
     for method in methods:
         for qty in ("theta", "walls", "points"):
             cov = table[(method, qty)]
