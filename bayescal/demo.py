@@ -10,6 +10,7 @@ figures of each method.
 from __future__ import annotations
 
 import dataclasses
+import os
 import subprocess
 import sys
 
@@ -147,7 +148,9 @@ def run_study(job, folder):
 
     cmd = job.argv(folder.path)
     print("running " + " ".join(shlex.quote(c) for c in job.argv(job.out)), flush=True)
-    rc = subprocess.run(cmd, check=False).returncode
+    # the script writes into the staging folder; it names the final one in its last line
+    env = {**os.environ, "BAYESCAL_STUDY_SHOWN_OUT": str(job.out)}
+    rc = subprocess.run(cmd, check=False, env=env).returncode
     if rc != 0:
         if rc < 0 or rc == 130:
             raise KeyboardInterrupt

@@ -215,6 +215,8 @@ def study_main(run, description, argv, files, *, add_arguments=None):
         return 2
     t0 = time.perf_counter()
     run(args, out)
+    # run from the CLI, the script writes into a staging folder that is moved into place
+    shown = pathlib.Path(os.environ.get("BAYESCAL_STUDY_SHOWN_OUT", out.path))
     print(f"done in {time.perf_counter() - t0:.0f} s; wrote "
-          + ", ".join(str(out.path / n) for n in files))
+          + ", ".join(str(shown / n) for n in files))
     return 0

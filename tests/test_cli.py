@@ -428,6 +428,9 @@ def test_study_runs_the_script_with_out_and_quick(tmp_path):
         "args = sys.argv[1:]\n"
         "out = pathlib.Path(args[args.index('--out') + 1])\n"
         "(out / 'args.txt').write_text(' '.join(args))\n"
+        "import bayescal.studyrun as s\n"
+        "s.study_main(lambda a, o: (o / 'r.txt').write_text('x'), 'echo',\n"
+        "             ['--out', str(out), '--force'], ['r.txt'])\n"
         "sys.exit(3 if '--fail' in out.name else 0)\n")
     env = {"BAYESCAL_STUDIES_DIR": str(tmp_path / "studies")}
     r = run("study", "echo", "--out", "o", "--quick", cwd=tmp_path, env=env)
@@ -436,6 +439,8 @@ def test_study_runs_the_script_with_out_and_quick(tmp_path):
     assert args[args.index("--seed") + 1] == "0" and args[args.index("--workers") + 1] == "2"
     assert "--quick" in args and "--scheduler" not in args
     assert not [p for p in tmp_path.iterdir() if "bayescal-tmp" in p.name]
+    # the script's last line names the final folder, not the staging one it wrote into
+    assert "wrote o/r.txt" in r.stdout and "bayescal-tmp" not in r.stdout, r.stdout
     r = run("study", "echo", "--out", "x--fail", cwd=tmp_path, env=env)
     assert r.returncode == 1 and "study echo exited with code 3" in r.stderr
 
