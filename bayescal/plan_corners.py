@@ -106,19 +106,23 @@ def best_split(xy, *, min_side=5):
     return int(np.nanargmin(cost)), cost
 
 
-def candidate_walls(xy, *, n_grid=3, min_side=5):
+def candidate_walls(xy, current, *, n_grid=3, min_side=5):
     """Starting walls for the two sides of a corner, one pair per candidate split.
 
-    Candidates: the best two-line split (:func:`best_split`) and ``n_grid`` splits at
-    evenly spaced quantiles of the points. Each pair of lines passes through the
-    corner point (the mean of the points next to the split), so the start's corner
-    lies at the split: the two lines fitted freely to points with ~100 mm of range
-    noise can meet far from it.
+    Candidates, when the best two-line split (:func:`best_split`) disagrees with
+    ``current``: that split and ``n_grid`` splits at evenly spaced quantiles. Each
+    pair of lines passes through the corner point (the mean of the points next to
+    the split), so the start's corner lies at the split: two lines fitted freely to
+    points with ~100 mm of range noise can meet far from it.
 
     Parameters
     ----------
     xy : ndarray, shape (n, 2)
         Points ordered by azimuth across the corner, mm.
+    current : int
+        The split of the fit being checked (points before its corner). No
+        candidates when the best two-line split lies within ``max(5, 5 %)`` of the
+        points of it (the common case: the restarts then cost nothing).
 
     Returns
     -------
@@ -127,8 +131,8 @@ def candidate_walls(xy, *, n_grid=3, min_side=5):
     """
     n = len(xy)
     best, _ = best_split(xy, min_side=min_side)
-    if best is None:
-        return []
+    if best is None or abs(best - current) <= max(5, 0.05 * n):
+        return []                       # the points' own kink agrees with the fit's corner
     grid = np.linspace(0, n, n_grid + 2)[1:-1].astype(int)
     ks = sorted({best, *(int(k) for k in np.clip(grid, min_side, n - min_side))})
     out = []

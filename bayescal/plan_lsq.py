@@ -347,7 +347,7 @@ def _corner_restarts(lik, prior, best, max_iter):
         order = sel[np.argsort(wrap_angle(best.t[sel] - c))]
         current = int(np.sum(best.wall_index[order] == j))
         found = None                        # (cost, g, t, assignment) of the best candidate
-        for k, w_j, w_jj in candidate_walls(pts[order, :2]):
+        for k, w_j, w_jj in candidate_walls(pts[order, :2], current):
             if abs(k - current) <= 2:
                 continue
             g = best.g.copy()

@@ -378,7 +378,7 @@ def tune_proposal(target, p0, mean, cov, rng, *, n_steps, n_rounds=3, moves=None
     """
     from .moves import HMCMove, IndependenceMove
 
-    state, acc = p0, []
+    state, acc, prev = p0, [], None
     ndim = len(mean)
     for r in range(int(n_rounds)):
         imh = IndependenceMove(mean, (1.5 if r == 0 else 1.0) * cov, scale=1.1,
@@ -397,6 +397,9 @@ def tune_proposal(target, p0, mean, cov, rng, *, n_steps, n_rounds=3, moves=None
         if moves is None and gradient:
             step_size = hmc.step_size
         ch = tune.get_chain(discard=int(n_steps) // 3).reshape(-1, ndim)
+        # pool with the previous round's draws (valid posterior draws too, after their
+        # burn-in): twice the draws for the covariance of many coordinates
+        ch, prev = (ch if prev is None else np.concatenate([prev, ch])), ch
         new_cov = np.cov(ch, rowvar=False)
         if np.all(np.linalg.eigvalsh(new_cov) > 0):
             mean, cov = ch.mean(axis=0), new_cov

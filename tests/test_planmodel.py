@@ -327,7 +327,10 @@ def test_two_line_split_finds_the_kink():
     assert abs(k - 150) <= 15                     # ~ +-1.5 % of the points around the kink
     d, a = line_fit(xy[:150])
     assert d == pytest.approx(3500.0, abs=20) and a == pytest.approx(0.0, abs=0.01)
-    for k, (d1, a1), (d2, a2) in candidate_walls(xy):
+    assert candidate_walls(xy, 150) == []            # the fit's corner agrees: no restarts
+    cands = candidate_walls(xy, 40)
+    assert len(cands) >= 3
+    for k, (d1, a1), (d2, a2) in cands:
         c = xy[max(k - 2, 0):k + 2].mean(axis=0)   # both lines pass through the split point
         assert np.isclose(np.cos(a1) * c[0] + np.sin(a1) * c[1], d1)
         assert np.isclose(np.cos(a2) * c[0] + np.sin(a2) * c[1], d2)
