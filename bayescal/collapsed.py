@@ -213,7 +213,9 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
                       n_iter=n_iter, n_tune=n_tune)
     rng = resolve_rng(rng)
     ndim = len(psi_map)
-    n_walkers = default_walkers(ndim) if n_walkers is None else int(n_walkers)
+    if n_walkers is None:       # a user's own moves may be red-blue: emcee's 2 ndim + 2
+        n_walkers = default_walkers(ndim) if moves is None else 2 * ndim + 2
+    n_walkers = int(n_walkers)
     # the ring radius at the points' median range (docs/bayes.md section 3)
     names = tuple(lik.extra_names)
     coords = Coordinates(getattr(lik, "reference_range", None),

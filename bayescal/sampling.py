@@ -87,7 +87,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         emcee walkers, at least ``ndim + 2`` (default
         :func:`~bayescal.sampler_steps.default_walkers`: ``2 ndim + 2`` up to 24;
         the ``tau_factor`` rule fixes the chain length in steps whatever the
-        ensemble size, so few walkers are cheapest).
+        ensemble size, so few walkers are cheapest; ``2 ndim + 2`` with your own
+        ``moves``, which may be red-blue moves).
     min_ess : float, optional
         Target effective sample size of every sampled coordinate, computed
         honestly for an ensemble (:func:`bayescal.diagnostics.ensemble_ess`).

@@ -190,3 +190,19 @@ def test_plan_posterior_with_a_gross_error_stays_near_the_clean_one(kind):
     if kind == "pixel":
         pure = to_identifiable(_short(pix, ds.floor_plan, outliers=False, **kw).param_samples)
         assert np.max(np.abs(pure.mean(axis=0) - m) / s) > 1.0
+
+
+def test_own_red_blue_moves_get_emcee_s_ensemble_size(plan_post):
+    """With the user's own moves (possibly red-blue, which emcee refuses below 2 ndim
+    walkers) the default ensemble is 2 ndim + 2, not the smaller one of the default moves."""
+    import emcee
+
+    ds, post = plan_post
+    ndim = len(post.diagnostics.names)
+    assert post.n_walkers < 2 * ndim                 # the default moves' smaller ensemble
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.NotConvergedWarning)
+        own = bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.5, rng=5, min_ess=20,
+                                  max_steps=60, n_tune=20, n_samples=50, progress=False,
+                                  moves=[(emcee.moves.StretchMove(), 1.0)])
+    assert own.n_walkers == 2 * ndim + 2
