@@ -21,7 +21,7 @@ from scipy.special import betaln, log_expit
 from ._validation import check_positive
 
 __all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "check_outlier_options", "log_prior_logit_frac",
-           "mix"]
+           "mix", "em_update"]
 
 #: default noise inflation ``c`` of the outlier component
 OUTLIER_SCALE = 100.0
@@ -95,3 +95,17 @@ def mix(x, per_in, m, n_rows, c, *, laplace):
     with np.errstate(over="ignore", invalid="ignore"):
         r = 1.0 / (1.0 + np.exp(a - b))
         return np.logaddexp(a, b), r
+
+
+def em_update(r, prior, c):
+    """EM M-step quantities from the outlier probabilities ``r`` (N,).
+
+    Returns ``(w, weights)``: the logit-scale mode of the outlier fraction under its
+    Beta(a, b) prior, ``w = (sum r + a) / (N + a + b)``, and each point's weight of its
+    squared residuals, ``(1 - r) + r / c^2`` (the outlier component is the same
+    Gaussian with c times the noise). Shared by the least squares on approximate
+    points and on a floor plan.
+    """
+    a, b = prior
+    r = np.asarray(r, dtype=float)
+    return float((np.sum(r) + a) / (r.size + a + b)), (1.0 - r) + r / c**2

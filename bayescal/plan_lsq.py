@@ -22,7 +22,7 @@ from scipy.special import expit
 
 from .floorplan import FloorPlan, corner_azimuths, wrap_angle
 from .laser import triangulate_theta
-from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, em_update
 from .parameters import SensorParams, from_identifiable, identifiable_jacobian, to_identifiable
 from .plan_corners import candidate_walls, shallow_corners
 from .plan_result import CHECK_P, N_RESTARTS, check_solution, make_result
@@ -291,14 +291,13 @@ def _logit(w):
 
 def _e_step(lik, g, sig):
     """EM E-step at ``g``: sets ``r``, ``w`` and the weights; returns ``max |change of r|``."""
-    a, b = lik.outlier_prior
     psi = np.concatenate([g[:7], g[8:], [np.log(sig)] if lik.infer_px else [],
                           [_logit(lik.em_w)]])
     r = lik.outlier_prob(psi)
     r = np.where(np.isfinite(r), r, 1.0)         # no inlier fit at all: an outlier
     change = float(np.max(np.abs(r - lik.em_r)))
-    lik.em_r, lik.em_w = r, float((np.sum(r) + a) / (lik.n + a + b))
-    lik.em_weights = (1.0 - r) + r / lik.outlier_scale**2
+    lik.em_r = r
+    lik.em_w, lik.em_weights = em_update(r, lik.outlier_prior, lik.outlier_scale)
     return change
 
 
@@ -324,7 +323,7 @@ def _anneal(lik, prior, g, t, sig):
     # log L_out - log L_in = m (1 - 1/c^2) / 2 - log c (two rows, one latent: planmodel)
     delta = 0.5 * np.where(ok, m, 0.0) / T2 * (1.0 - 1.0 / c**2) - np.log(c)
     lik.em_r = np.where(ok, expit(_logit(lik.em_w) + delta), 1.0)
-    lik.em_weights = (1.0 - lik.em_r) + lik.em_r / c**2
+    lik.em_weights = em_update(lik.em_r, lik.outlier_prior, c)[1]
 
 
 def _corner_restarts(lik, prior, best, max_iter):

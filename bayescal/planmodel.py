@@ -412,7 +412,9 @@ class PlanLikelihood:
             side = wrap_angle(ts_ - c) * sign                       # > 0 inside the piece
             lm = (-0.5 * rr * inv_s2 - 0.5 * lhc
                   + log_ndtr(side * np.sqrt(C * np.exp(lhc) * inv_s2)))
-            lo = -0.5 * rr * inv_s2 / self.outlier_scale**2 - 0.5 * lhc
+            # the outlier's mass only with the mixture (the sampler's hot path otherwise)
+            lo = (-0.5 * rr * inv_s2 / self.outlier_scale**2 - 0.5 * lhc) if self.outliers \
+                else lm
         return (np.where(np.isfinite(lm), lm, -np.inf), ts_, C * inv_s2,
                 np.where(np.isfinite(lm), lo, -np.inf))
 

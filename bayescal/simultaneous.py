@@ -24,7 +24,7 @@ import numpy as np
 from .checks import check_calibration_input, check_noise_levels
 from .floorplan import FloorPlan
 from .model import LaserLikelihood
-from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, mix
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, em_update, mix
 from .parameters import (
     IDENTIFIABLE_NAMES,
     PARAM_NAMES,
@@ -203,7 +203,7 @@ def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
     u = np.ones(lik.n)
     if lik.outliers:
         fit.r = _initial_outlier_prob(lik, fit, theta0, q0)
-        u = _weights(lik, fit.r)
+        u = em_update(fit.r, lik.outlier_prior, lik.outlier_scale)[1]
     rounds = max_rounds if lik.outliers else 1 + 3 * lik.n_noise
     for k in range(rounds):
         fit.sol = solve_map(lik, prior, theta0, q0, sigma_px=fit.sig, w_scene=fit.w_scene(lik),
@@ -219,17 +219,12 @@ def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
                              n_iter=2)
         r = np.where(np.isfinite(r), r, 1.0)
         change = np.max(np.abs(r - fit.r))
-        fit.r, fit.w = r, (np.sum(r) + a) / (lik.n + a + b)
-        u = _weights(lik, r)
+        fit.r = r
+        fit.w, u = em_update(r, lik.outlier_prior, lik.outlier_scale)
         noise_change = max(abs(np.log(fit.sig / old[0])), abs(np.log(fit.kappa / old[1])))
         if change < r_tol and noise_change < 1e-4 and k > 0:
             break
     return fit
-
-
-def _weights(lik, r):
-    """EM weights of the squared residuals, ``(1 - r) + r / c^2``, shape (N,)."""
-    return (1.0 - r) + r / lik.outlier_scale**2
 
 
 def _initial_outlier_prob(lik, fit, theta0, q0):
