@@ -25,8 +25,9 @@ import numpy as np
 from ._validation import as_pixels, as_points, check_positive
 from .camera import project_theta
 from .laser import cone_point_theta, triangulate_theta
-from .model_grad import grad_terms
+from .model_grad import grad_terms, point_terms
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
+from .point_blocks import clear_blocks, concat_blocks, sum_blocks
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
 
 __all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "OUTLIER_SCALE",
@@ -136,6 +137,11 @@ class LaserLikelihood:
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         self.ref_kappa = 0.05
 
+    def __getstate__(self):
+        state = self.__dict__.copy()        # the point blocks are a cache of views: rebuilt
+        state.pop("_point_block_cache", None)
+        return state
+
     def set_reference_noise(self, *, sigma_px=None, kappa=None):
         """Noise levels at which the Jeffreys prior of the points is evaluated.
 
@@ -147,6 +153,7 @@ class LaserLikelihood:
             self.ref_sigma_px = check_positive(sigma_px, "sigma_px")
         if kappa is not None:
             self.ref_kappa = check_positive(kappa, "kappa")
+        clear_blocks(self)                  # the blocks copied the old levels
 
     # -- noise ---------------------------------------------------------------
     def noise(self, extra):
@@ -286,41 +293,8 @@ class LaserLikelihood:
         return q
 
     def _point_terms(self, theta, x, y, sig, w):
-        """Hot path of :meth:`laplace`: residuals and q-normal equations, elementwise.
-
-        Same quantities as :meth:`residuals` (tested against it), written out
-        for 2x2 blocks so that walkers x points cost a few dozen array ops.
-        Returns ``(rr, Cp, Cs, g0, g1)``: ``rr = |R|^2``, the pixel and scene
-        parts of ``J_q^T J_q`` as ``(C00, C01, C11)`` triples, and the gradient.
-        """
-        xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
-        T = np.tan(beta)
-        rho = np.sqrt(x * x + y * y)
-        gx, gy = x / (rho * T), y / (rho * T)
-        z = rho / T - h
-        r = np.sqrt(rho * rho + z * z)
-        D = xi * r - z
-        iD = np.where(D > 0, 1.0 / D, np.nan)
-        mx, my = x * iD, y * iD
-        inv_s = 1.0 / sig[..., None]
-        ru = (gu * mx + u0 - self.pixels[:, 0]) * inv_s
-        rv = (gv * my + v0 - self.pixels[:, 1]) * inv_s
-        xr = xi / r
-        dDx = xr * (x + z * gx) - gx
-        dDy = xr * (y + z * gy) - gy
-        a, b = gu * iD * inv_s, gv * iD * inv_s
-        ux, uy = a * (1.0 - mx * dDx), -a * mx * dDy
-        vx, vy = -b * my * dDx, b * (1.0 - my * dDy)
-        wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
-        rx, ry, rz = (x - self.approx[:, 0]) * wx, (y - self.approx[:, 1]) * wy, \
-            (z - self.approx[:, 2]) * wz
-        wz2 = wz * wz
-        Cp = (ux * ux + vx * vx, ux * uy + vx * vy, uy * uy + vy * vy)
-        Cs = (wx * wx + wz2 * gx * gx, wz2 * gx * gy, wy * wy + wz2 * gy * gy)
-        g0 = ux * ru + vx * rv + wx * rx + wz * gx * rz
-        g1 = uy * ru + vy * rv + wy * ry + wz * gy * rz
-        rr = ru * ru + rv * rv + rx * rx + ry * ry + rz * rz
-        return rr, Cp, Cs, g0, g1
+        """Hot path of :meth:`laplace` (:func:`~bayescal.model_grad.point_terms`)."""
+        return point_terms(self, theta, x, y, sig, w)
 
     def _log_point_prior(self, extra, sig, Cp, Cs):
         """log of the points' prior density at the current q, shape (..., N).
@@ -376,6 +350,14 @@ class LaserLikelihood:
         C = np.stack([np.stack([C00, C01], -1), np.stack([C01, C11], -1)], -2)
         return np.where(np.isfinite(total), total, -np.inf), np.stack([x, y], -1), C
 
+    def log_marginal(self, psi, q0, *, n_iter=4):
+        """:meth:`laplace`'s first output alone (the sampler's target: no per-point arrays)."""
+        total = sum_blocks(self, "_marginal_block", psi, q0, n_iter)[0]
+        return np.where(np.isfinite(total), total, -np.inf)
+
+    def _marginal_block(self, psi, q0, n_iter):
+        return (self._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+
     def outlier_prob(self, psi, q0, *, n_iter=4):
         """Probability that each point is an outlier given ``psi``, shape (..., N).
 
@@ -416,6 +398,10 @@ class LaserLikelihood:
                 "det": det, "gd": g0 * d0 + g1 * d1}
 
     def _laplace_points(self, psi, q0, n_iter):
+        """Per-point terms of :meth:`laplace`, in cache-sized blocks of points."""
+        return concat_blocks(self, "_laplace_block", psi, q0, n_iter)
+
+    def _laplace_block(self, psi, q0, n_iter):
         theta, extra = self.split(psi)
         sig, w, log_norm = self.noise(extra)
         r = None
@@ -452,9 +438,13 @@ class LaserLikelihood:
         grad : ndarray, shape (..., 7 + n_noise)
             NaN where the value is ``-inf``.
         """
-        psi = np.asarray(psi, dtype=float)
-        per_point, x, y, *_, r = self._laplace_points(psi, q0, n_iter)   # one pass: laplace's
-        value = np.where(np.isfinite(total := per_point.sum(axis=-1)), total, -np.inf)
+        total, grad = sum_blocks(self, "_grad_block", psi, q0, n_iter)
+        value = np.where(np.isfinite(total), total, -np.inf)
+        return value, np.where(np.isfinite(value)[..., None], grad, np.nan)
+
+    def _grad_block(self, psi, q0, n_iter):
+        """One block's sum of the log marginal's per-point terms and its gradient."""
+        per_point, x, y, *_, r = self._laplace_block(psi, q0, n_iter)   # one pass: laplace's
         theta, extra = self.split(psi)
         lw = extra[..., -1] if self.outliers else None
         sig, w, _ = self.noise(extra)
@@ -465,11 +455,13 @@ class LaserLikelihood:
             x = x - (C11 * g0 - C01 * g1) / det            # one more step: the modes
             y = y - (C00 * g1 - C01 * g0) / det
             grad = grad_terms(self, theta, x, y, sig, w, outlier_resp=r, logit_w=lw)
-        grad = np.where(np.isfinite(value)[..., None], grad, np.nan)
-        return value, grad
+        return per_point.sum(axis=-1), grad
 
     def _exact_terms(self, psi, q):
         """Per-point exact log density of (data, q) given psi, normalisers included."""
+        return concat_blocks(self, "_exact_block", psi, q)[0]
+
+    def _exact_block(self, psi, q):
         theta, extra = self.split(psi)
         sig, w, log_norm = self.noise(extra)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -478,7 +470,7 @@ class LaserLikelihood:
             if self.outliers:
                 per_point, _ = mix(extra[..., -1], per_point, rr, self._n_rows,
                                    self.outlier_scale, laplace=False)
-        return per_point
+        return (per_point,)
 
     def log_joint(self, psi, q):
         """Exact log density of ``(psi, q)`` (likelihood times point prior), shape (...).

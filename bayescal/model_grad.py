@@ -1,14 +1,56 @@
-"""The analytic gradient of the collapsed laser likelihood (envelope theorem).
+"""The per-point algebra of the collapsed laser likelihood: the hot path's terms
+(:func:`point_terms`) and the analytic gradient (envelope theorem, :func:`grad_terms`).
 
 Kept apart from :mod:`bayescal.model` for size; used by
-:meth:`bayescal.model.LaserLikelihood.grad_log_marginal`.
+:meth:`bayescal.model.LaserLikelihood.laplace` and
+:meth:`~bayescal.model.LaserLikelihood.grad_log_marginal`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grad_terms"]
+__all__ = ["grad_terms", "point_terms"]
+
+
+def point_terms(lik, theta, x, y, sig, w):
+    """Hot path of :meth:`~bayescal.model.LaserLikelihood.laplace`: residuals and
+    q-normal equations, elementwise.
+
+    Same quantities as :meth:`~bayescal.model.LaserLikelihood.residuals` (tested
+    against it), written out for 2x2 blocks so that walkers x points cost a few
+    dozen array ops.
+    Returns ``(rr, Cp, Cs, g0, g1)``: ``rr = |R|^2``, the pixel and scene
+    parts of ``J_q^T J_q`` as ``(C00, C01, C11)`` triples, and the gradient.
+    """
+    xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
+    T = np.tan(beta)
+    rho = np.sqrt(x * x + y * y)
+    gx, gy = x / (rho * T), y / (rho * T)
+    z = rho / T - h
+    r = np.sqrt(rho * rho + z * z)
+    D = xi * r - z
+    iD = np.where(D > 0, 1.0 / D, np.nan)
+    mx, my = x * iD, y * iD
+    inv_s = 1.0 / sig[..., None]
+    ru = (gu * mx + u0 - lik.pixels[:, 0]) * inv_s
+    rv = (gv * my + v0 - lik.pixels[:, 1]) * inv_s
+    xr = xi / r
+    dDx = xr * (x + z * gx) - gx
+    dDy = xr * (y + z * gy) - gy
+    a, b = gu * iD * inv_s, gv * iD * inv_s
+    ux, uy = a * (1.0 - mx * dDx), -a * mx * dDy
+    vx, vy = -b * my * dDx, b * (1.0 - my * dDy)
+    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+    rx, ry, rz = (x - lik.approx[:, 0]) * wx, (y - lik.approx[:, 1]) * wy, \
+        (z - lik.approx[:, 2]) * wz
+    wz2 = wz * wz
+    Cp = (ux * ux + vx * vx, ux * uy + vx * vy, uy * uy + vy * vy)
+    Cs = (wx * wx + wz2 * gx * gx, wz2 * gx * gy, wy * wy + wz2 * gy * gy)
+    g0 = ux * ru + vx * rv + wx * rx + wz * gx * rz
+    g1 = uy * ru + vy * rv + wy * ry + wz * gy * rz
+    rr = ru * ru + rv * rv + rx * rx + ry * ry + rz * rz
+    return rr, Cp, Cs, g0, g1
 
 
 def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
