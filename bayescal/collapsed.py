@@ -255,7 +255,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
-def posterior_outlier_prob(lik, psi, q, batch=256, max_draws=500):
+def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
     """Posterior probability (N,) that each row is an outlier: the mean over draws of its
     conditional probability given the globals (None without the mixture).
 
@@ -263,10 +263,12 @@ def posterior_outlier_prob(lik, psi, q, batch=256, max_draws=500):
     ``outlier_prob(psi, q)``, ``psi`` (S, d) and ``q`` (S, N, k) are the draws. At most
     ``max_draws`` evenly spaced draws are used: a mean of probabilities in [0, 1] over 500
     draws has a Monte-Carlo error below 0.5 / sqrt(500) = 0.02 even for independent draws,
-    and each draw costs a likelihood evaluation.
+    and each draw costs a likelihood evaluation. ``batch`` draws go in one vectorized call
+    (default ~5e5 (draw, point) pairs: bounds the temporaries' memory at large N).
     """
     if not getattr(lik, "outliers", False):
         return None
+    batch = max(1, 500_000 // max(lik.n, 1)) if batch is None else int(batch)
     every = max(1, -(-len(psi) // max_draws))
     psi, q = psi[::every], q[::every]
     total = np.zeros(lik.n)

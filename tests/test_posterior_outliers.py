@@ -90,3 +90,20 @@ def test_collapsed_gradient_matches_finite_differences_with_the_mixture(outliers
         fd[k] = (lik.laplace(psi + e, q0, n_iter=6)[0]
                  - lik.laplace(psi - e, q0, n_iter=6)[0]) / (2 * e[k])
     np.testing.assert_allclose(grad, fd, rtol=1e-3)
+
+
+def test_outlier_prob_does_not_depend_on_the_batch():
+    """The batches only bound the memory (default ~5e5 draw-point pairs per call)."""
+    from bayescal.collapsed import posterior_outlier_prob
+    from bayescal.model import LaserLikelihood
+    ds, sig = _room(80)
+    lik = LaserLikelihood(ds.pixels, ds.approx_points, sigma_px=0.5, sigma_scene=sig,
+                          outliers=True)
+    rng = np.random.default_rng(4)
+    theta = ds.params.to_identifiable()
+    psi = np.concatenate([theta, [-3.0]]) * (1 + 1e-4 * rng.standard_normal((30, 8)))
+    q = np.broadcast_to(ds.points[:, :2], (30, 80, 2))
+    one = posterior_outlier_prob(lik, psi, q, batch=1)
+    np.testing.assert_allclose(posterior_outlier_prob(lik, psi, q), one, rtol=1e-12)
+    np.testing.assert_allclose(posterior_outlier_prob(lik, psi, q, batch=7), one, rtol=1e-12)
+    assert one.shape == (80,) and np.all((one >= 0) & (one <= 1))
