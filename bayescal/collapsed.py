@@ -17,6 +17,7 @@ import numpy as np
 
 from ._validation import resolve_rng
 from .diagnostics import ChainDiagnostics
+from .errors import NoiseAtBoundWarning, NotConvergedError, NotConvergedWarning
 from .model import draw_points
 from .moves import HMCMove, IndependenceMove
 from .sampler_steps import (
@@ -42,24 +43,6 @@ IMH_WEIGHT = 0.6
 #: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
 HMC_PATH = 1.5
 
-
-
-class NotConvergedWarning(UserWarning):
-    """The chain did not meet its convergence rule (results may be biased)."""
-
-
-class NoiseAtBoundWarning(UserWarning):
-    """An inferred noise level's posterior piles up at its prior's lower bound."""
-
-
-class NotConvergedError(RuntimeError):
-    """The chain did not converge; ``.tau`` holds the autocorrelation times, ``.posterior``
-    the (unconverged) result."""
-
-    def __init__(self, message, tau=None, posterior=None):
-        super().__init__(message)
-        self.tau = tau
-        self.posterior = posterior
 
 
 def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,

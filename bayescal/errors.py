@@ -1,4 +1,5 @@
-"""Exceptions and exit codes shared by the command line, the readers and the jobs.
+"""Exceptions, warnings and exit codes shared by the command line, the readers, the
+samplers and the jobs.
 
 This module imports nothing from bayescal, so every other module may import it
 without closing an import cycle.
@@ -11,8 +12,8 @@ Exit codes of the ``bayescal`` command: :data:`EXIT_OK` (0) success,
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "Failure", "InputError", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE",
-           "EXIT_INTERRUPTED"]
+__all__ = ["UsageError", "Failure", "InputError", "NotConvergedWarning", "NotConvergedError",
+           "NoiseAtBoundWarning", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -45,3 +46,21 @@ class InputError(ValueError):
     def __init__(self, message, *, path=None, line=None, column=None):
         super().__init__(message)
         self.path, self.line, self.column = path, line, column
+
+
+class NotConvergedWarning(UserWarning):
+    """The chain did not meet its convergence rule (results may be biased)."""
+
+
+class NoiseAtBoundWarning(UserWarning):
+    """An inferred noise level's posterior piles up at its prior's lower bound."""
+
+
+class NotConvergedError(RuntimeError):
+    """The chain did not converge; ``.tau`` holds the autocorrelation times, ``.posterior``
+    the (unconverged) result."""
+
+    def __init__(self, message, tau=None, posterior=None):
+        super().__init__(message)
+        self.tau = tau
+        self.posterior = posterior
