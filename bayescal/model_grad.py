@@ -106,7 +106,7 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
            np.sum(A * (1.0 - zr) + rzw, -1),
            np.sum(A * (zr - 1.0) * dz_db - rzw * dz_db, -1)]
     if lik.n_noise:
-        _, Cp, Cs, _, _ = lik._point_terms(theta, x, y, sig, w)
+        _, Cp, Cs, _, _ = point_terms(lik, theta, x, y, sig, w)
         C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
         det = C00 * C11 - C01 * C01
 
