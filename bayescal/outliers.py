@@ -21,7 +21,7 @@ from scipy.special import betaln, log_expit
 from ._validation import check_positive
 
 __all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "check_outlier_options", "log_prior_logit_frac",
-           "mix", "em_update"]
+           "mix", "combine", "em_update"]
 
 #: default noise inflation ``c`` of the outlier component
 OUTLIER_SCALE = 100.0
@@ -87,11 +87,20 @@ def mix(x, per_in, m, n_rows, c, *, laplace):
     r : ndarray, shape (..., N)
         Outlier probability ``w L_out / ((1 - w) L_in + w L_out)``.
     """
-    x = np.asarray(x, dtype=float)[..., None]
     vol = 2.0 if laplace else 0.0
     delta = 0.5 * m * (1.0 - 1.0 / c**2) + (vol - n_rows) * np.log(c)
-    a = log_expit(-x) + per_in
-    b = log_expit(x) + per_in + delta
+    return combine(np.asarray(x, dtype=float)[..., None], per_in, per_in + delta)
+
+
+def combine(x, log_in, log_out):
+    """``log((1 - w) L_in + w L_out)`` and the outlier probability, from ``logit w``.
+
+    ``x`` broadcasts against ``log_in`` and ``log_out`` (e.g. (..., 1) against
+    (..., N)). Shared by the per-point model (:func:`mix`) and the floor plan's,
+    which build ``L_out`` differently.
+    """
+    a = log_expit(-x) + log_in
+    b = log_expit(x) + log_out
     with np.errstate(over="ignore", invalid="ignore"):
         r = 1.0 / (1.0 + np.exp(a - b))
         return np.logaddexp(a, b), r

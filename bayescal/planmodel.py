@@ -56,14 +56,20 @@ The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0,
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import log_expit, log_ndtr
+from scipy.special import log_ndtr
 
 from ._validation import as_pixels, check_positive
 from .camera import project_theta
 from .floorplan import FloorPlan, corner_azimuths, plan_point, wrap_angle
 from .laser import pixel_azimuth
 from .model import NOISE_BOUNDS
-from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac
+from .outliers import (
+    OUTLIER_PRIOR,
+    OUTLIER_SCALE,
+    check_outlier_options,
+    combine,
+    log_prior_logit_frac,
+)
 from .parameters import SensorParams
 
 __all__ = ["PlanLikelihood"]
@@ -361,11 +367,7 @@ class PlanLikelihood:
                 # untruncated outlier pieces weighted by the inlier's piece shares (module doc)
                 lout = (np.logaddexp(logm[0] - m + lo[0], logm[1] - m + lo[1])
                         - np.log(self.outlier_scale) + norm)
-                x = self.logit_frac(psi)[..., None]
-                a, b = log_expit(-x) + per_point, log_expit(x) + lout
-                per_point = np.logaddexp(a, b)
-                with np.errstate(over="ignore"):
-                    r = 1.0 / (1.0 + np.exp(a - b))
+                per_point, r = combine(self.logit_frac(psi)[..., None], per_point, lout)
         pick = logm[1] > logm[0]
         return per_point, np.where(pick, ts[1], ts[0])[..., None], np.where(pick, Cs[1], Cs[0]), r
 
@@ -436,9 +438,8 @@ class PlanLikelihood:
             rr = (u - self.pixels[:, 0]) ** 2 + (v - self.pixels[:, 1]) ** 2
             lin = -0.5 * rr / sig[..., None] ** 2
             if self.outliers:
-                c, x = self.outlier_scale, self.logit_frac(psi)[..., None]
-                lin = np.logaddexp(log_expit(-x) + lin,
-                                   log_expit(x) + lin / c**2 - 2 * np.log(c))
+                c = self.outlier_scale
+                lin = combine(self.logit_frac(psi)[..., None], lin, lin / c**2 - 2 * np.log(c))[0]
             out = lin + 0.5 * np.log((du * du + dv * dv)) - np.log(self.ref_sigma_px)
         return np.where(np.isfinite(out), out, -np.inf)
 
