@@ -21,7 +21,7 @@ from scipy.special import betaln, log_expit
 from ._validation import check_positive
 
 __all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "check_outlier_options", "log_prior_logit_frac",
-           "mix", "combine", "em_update"]
+           "mix", "combine", "em_update", "annealed_outlier_prob"]
 
 #: default noise inflation ``c`` of the outlier component
 OUTLIER_SCALE = 100.0
@@ -118,3 +118,40 @@ def em_update(r, prior, c):
     a, b = prior
     r = np.asarray(r, dtype=float)
     return float((np.sum(r) + a) / (r.size + a + b)), (1.0 - r) + r / c**2
+
+
+def annealed_outlier_prob(m, dof, x, log_ratio):
+    """First E-step at a start: outlier probabilities with the noise scaled to the median point.
+
+    Away from the MAP every point misfits by several noise sd; scaling the noise by
+    ``T = sqrt(median m_i / median chi2(dof_i))`` makes the typical point an inlier and
+    leaves the gross errors far out, so that none enters the first fit at full weight.
+    Shared by the least squares on approximate points and on a floor plan.
+
+    Parameters
+    ----------
+    m : ndarray, shape (N,)
+        Each point's squared whitened residual at its own best latent (NaN or inf
+        outside the model's domain).
+    dof : ndarray, shape (N,), or float
+        Its degrees of freedom (residual rows minus latent dimensions).
+    x : float
+        ``logit w``.
+    log_ratio : callable
+        ``log_ratio(m)`` -> ``log L_out - log L_in`` of the model, elementwise.
+
+    Returns
+    -------
+    ndarray, shape (N,), or None
+        ``r``, 1 outside the domain; None if no point is inside it.
+    """
+    from scipy.stats import chi2
+
+    m = np.asarray(m, dtype=float)
+    ok = np.isfinite(m)
+    if not np.any(ok):
+        return None
+    dof = np.broadcast_to(np.asarray(dof, dtype=float), m.shape)
+    T2 = max(1.0, float(np.median(m[ok] / chi2.median(dof[ok]))))
+    r = combine(x, 0.0, log_ratio(np.where(ok, m, 0.0) / T2))[1]
+    return np.where(ok, r, 1.0)

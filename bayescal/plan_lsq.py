@@ -17,12 +17,10 @@ sampler explores, and the inverse Schur complement is its Laplace covariance.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
-from scipy.special import expit
 
 from .floorplan import FloorPlan, corner_azimuths, wrap_angle
 from .laser import triangulate_theta
-from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, em_update
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, annealed_outlier_prob, em_update
 from .parameters import SensorParams, from_identifiable, identifiable_jacobian, to_identifiable
 from .plan_corners import candidate_walls, shallow_corners
 from .plan_result import CHECK_P, N_RESTARTS, check_solution, make_result
@@ -302,28 +300,24 @@ def _e_step(lik, g, sig):
 
 
 def _anneal(lik, prior, g, t, sig):
-    """First E-step at a start, with the noise scaled to the median point.
-
-    Away from the MAP every point misfits; scaling the noise by ``T = sqrt(median
-    m_i / median chi2(1))`` (``m_i`` the point's squared whitened residual at its own
-    best azimuth: one degree of freedom) makes the typical point an inlier and
-    leaves the gross errors far out, so that none enters the first fit at full weight.
-    """
+    """First E-step at a start (:func:`~bayescal.outliers.annealed_outlier_prob`; ``m_i`` at
+    the point's own best azimuth, one degree of freedom: two pixel rows, one latent)."""
     a, b = lik.outlier_prior
     lik.em_weights, lik.em_r, lik.em_w = None, np.zeros(lik.n), a / (a + b)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         _, ne = _normal_equations(lik, prior, g, t, sig)
         m = np.sum(ne["R0"] ** 2, axis=1) - ne["gt"] ** 2 / ne["C"]
-    ok = np.isfinite(m)
-    if not np.any(ok):
+    c = lik.outlier_scale
+
+    def log_ratio(mm):                  # log L_out - log L_in (planmodel's module doc)
+        return 0.5 * mm * (1.0 - 1.0 / c**2) - np.log(c)
+
+    r = annealed_outlier_prob(m, 1.0, _logit(lik.em_w), log_ratio)
+    if r is None:
         lik.em_weights = np.ones(lik.n)
         return
-    c = lik.outlier_scale
-    T2 = max(1.0, float(np.median(m[ok]) / stats.chi2.median(1)))
-    # log L_out - log L_in = m (1 - 1/c^2) / 2 - log c (two rows, one latent: planmodel)
-    delta = 0.5 * np.where(ok, m, 0.0) / T2 * (1.0 - 1.0 / c**2) - np.log(c)
-    lik.em_r = np.where(ok, expit(_logit(lik.em_w) + delta), 1.0)
-    lik.em_weights = em_update(lik.em_r, lik.outlier_prior, c)[1]
+    lik.em_r = r
+    lik.em_weights = em_update(r, lik.outlier_prior, c)[1]
 
 
 def _corner_restarts(lik, prior, best, max_iter):

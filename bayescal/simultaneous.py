@@ -24,7 +24,7 @@ import numpy as np
 from .checks import check_calibration_input, check_noise_levels
 from .floorplan import FloorPlan
 from .model import LaserLikelihood
-from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, em_update, mix
+from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, annealed_outlier_prob, em_update
 from .parameters import (
     IDENTIFIABLE_NAMES,
     PARAM_NAMES,
@@ -228,24 +228,17 @@ def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
 
 
 def _initial_outlier_prob(lik, fit, theta0, q0):
-    """Outlier probabilities at the start, with the noise scaled to the median point.
-
-    At the prior mean every point misfits by several noise sd; scaling the noise by
-    ``T = sqrt(median m_i / median chi2(dof_i))`` (``m_i`` the point's squared whitened
-    residual at its own best q, ``dof_i = n_rows_i - 2``) makes the typical point an
-    inlier and leaves the gross errors far out.
-    """
-    from scipy.stats import chi2
-
+    """Outlier probabilities at the start (:func:`~bayescal.outliers.annealed_outlier_prob`;
+    ``m_i`` at the point's own best q, ``dof_i = n_rows_i - 2``)."""
     extra = fit.extra(lik)
     m = lik.min_residual(np.concatenate([theta0, extra]), q0)
-    ok = np.isfinite(m)
-    if not np.any(ok):
-        return np.zeros(lik.n)
-    T2 = max(1.0, float(np.median(m[ok] / chi2.median(np.maximum(lik._n_rows[ok] - 2, 1)))))
-    _, r = mix(extra[-1], np.zeros(lik.n), np.where(ok, m / T2, np.inf), lik._n_rows,
-               lik.outlier_scale, laplace=True)
-    return np.where(ok, r, 1.0)
+    c, n_rows = lik.outlier_scale, lik._n_rows
+
+    def log_ratio(mm):                  # mix's: two latent dimensions, n_rows rows
+        return 0.5 * mm * (1.0 - 1.0 / c**2) + (2.0 - n_rows) * np.log(c)
+
+    r = annealed_outlier_prob(m, np.maximum(n_rows - 2, 1), extra[-1], log_ratio)
+    return np.zeros(lik.n) if r is None else r
 
 
 def _fit_noise(lik, fit):
