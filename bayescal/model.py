@@ -351,7 +351,8 @@ class LaserLikelihood:
         return np.where(np.isfinite(total), total, -np.inf), np.stack([x, y], -1), C
 
     def log_marginal(self, psi, q0, *, n_iter=4):
-        """:meth:`laplace`'s first output alone (the sampler's target: no per-point arrays)."""
+        """:meth:`laplace`'s first output alone, shape (...) for ``psi`` (..., 7 + n_extra)
+        and ``q0`` (..., N, 2) or (N, 2): the sampler's target, without per-point arrays."""
         total = sum_blocks(self, "_marginal_block", psi, q0, n_iter)[0]
         return np.where(np.isfinite(total), total, -np.inf)
 
