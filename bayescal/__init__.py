@@ -8,26 +8,27 @@ classical way (sequential), and as a Bayesian posterior with emcee.
 See ``docs/`` for the model, conventions and the public API.
 """
 
-from .camera import backproject, project
-from .checks import DuplicateRowsWarning, NoiseCollapseError
-from .floorplan import FloorPlan
-from .laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
-from .metrics import reconstruction_error, reconstruction_errors
-from .parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
-from .posterior import Posterior, load_posterior
-from .priors import Prior, default_prior
-from .reconstruction import Reconstruction
-from .results import (
+from .checks.fit import NoiseCollapseError
+from .checks.inputs import DuplicateRowsWarning
+from .fit.sequential import calibrate_sequential, sequential_residuals
+from .fit.simultaneous import calibrate_simultaneous
+from .likelihood.priors import Prior, default_prior
+from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
+from .results.calibration import (
     CalibrationResult,
     ConvergenceError,
     IdentifiabilityReport,
     identifiability_report,
     load_result,
 )
-from .sampling import NotConvergedError, NotConvergedWarning, sample_posterior
-from .scenes import CalibrationData, Dataset, room_walls, simulate_room
-from .sequential import calibrate_sequential, sequential_residuals
-from .simultaneous import calibrate_simultaneous
+from .results.metrics import reconstruction_error, reconstruction_errors
+from .results.posterior import Posterior, load_posterior
+from .results.reconstruction import Reconstruction
+from .scene.floorplan import FloorPlan
+from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
+from .sensor.camera import backproject, project
+from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
+from .sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
 
 __version__ = "0.1.0"
 

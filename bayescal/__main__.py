@@ -1,7 +1,7 @@
-"""``python -m bayescal`` runs the command line (see :mod:`bayescal.cli`)."""
+"""``python -m bayescal`` runs the command line (see :mod:`bayescal.cli.main`)."""
 
 import sys
 
-from .cli import main
+from .cli.main import main
 
 sys.exit(main())

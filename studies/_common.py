@@ -1,6 +1,6 @@
 """Shared machinery of the paper-reproduction studies (fig7, fig8, fig9, identifiability, design).
 
-* the shared study runner of :mod:`bayescal.studyrun` (``parse_args``,
+* the shared study runner of :mod:`bayescal.cli.studyrun` (``parse_args``,
   ``executor``, ``run_trials``, ``study_main``), re-exported;
 * :func:`sensor_for_trial`, :func:`three_methods`: one trial of the paper's
   comparison (sequential, simultaneous, Bayesian posterior mean);
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 import bayescal as bc
-import bayescal.io
+import bayescal.io.data
 
 __all__ = ["parse_args", "executor", "run_trials", "OutputDir", "write_json", "to_jsonable",
            "sensor_for_trial", "three_methods", "bayes_settings", "scene_sigma",
@@ -29,7 +29,7 @@ PERTURB_SCALE = 0.5
 
 
 # the runner (command line, executors, seeded trials, output folder) is bayescal's own
-from bayescal.studyrun import (  # noqa: E402,F401  (re-exported for the study scripts)
+from bayescal.cli.studyrun import (  # noqa: E402,F401  (re-exported for the study scripts)
     OutputDir,
     executor,
     parse_args,
@@ -41,7 +41,7 @@ from bayescal.studyrun import (  # noqa: E402,F401  (re-exported for the study s
 
 def to_jsonable(obj):
     """Convert numpy scalars/arrays to JSON types; NaN and infinities become None."""
-    return bayescal.io.to_jsonable(obj, nonfinite="null")
+    return bayescal.io.data.to_jsonable(obj, nonfinite="null")
 
 
 # --------------------------------------------------------------------------- one trial

@@ -9,7 +9,7 @@ median wall time, beside a same-run baseline:
 * the collapsed sampler at N = 40, 580 (both rooms, z known and unknown, the
   "wall" model, sigma_px inferred), 5000, and on a rough floor plan (N = 580);
 * optionally N = 20 000 in a child process, with its peak resident memory;
-* the independent full-joint NumPyro NUTS reference (:mod:`bayescal.nuts`) on
+* the independent full-joint NumPyro NUTS reference (:mod:`bayescal.mcmc.nuts`) on
   the data of its slow test, when jax and numpyro can be imported.
 
 Rows are returned as plain tuples ``(name, setting, seconds, ratio, notes)``;
@@ -52,7 +52,7 @@ def _room_for(range_mm, model, n_points, *, approx_error=0.05, sigma_px=0.1, rng
 def _naive_joint(n_points, n_steps):
     """Full-joint emcee (8 + 3N unknowns as 7 + 2N) on an N-point small room: time,
     effective samples (walkers x kept steps / max tau) and tau."""
-    from bayescal.sampling import sample_joint
+    from bayescal.mcmc.sampling import sample_joint
 
     ds = bc.simulate_room(range_mm=1000, n_points=n_points, sigma_px=0.3, approx_error=0.02,
                           approx_model="gaussian", rng=4)
@@ -199,7 +199,7 @@ def large_n_row(base, n_points):
             + _facts_text(facts))
 
 
-#: the z-unknown scene of tests/test_nuts_reference.py, and its NUTS settings
+#: the z-unknown scene of tests/mcmc/test_nuts_reference.py, and its NUTS settings
 NUTS_SCENE = dict(range_mm=1000.0, n_points=300, sigma_px=0.5, approx_error=0.03,
                   approx_model="fig9")
 NUTS_SETTINGS = dict(num_warmup=500, num_samples=1000, num_chains=2, rng=0)
@@ -209,7 +209,7 @@ def _nuts_min_ess(params, num_chains):
     """Min over the 7 identifiable parameters of NumPyro's ESS (chains kept apart)."""
     from numpyro.diagnostics import effective_sample_size
 
-    from bayescal.parameters import to_identifiable
+    from bayescal.sensor.parameters import to_identifiable
 
     t = to_identifiable(params).reshape(num_chains, -1, 7)
     return float(np.min(np.asarray(effective_sample_size(t))))
@@ -217,7 +217,7 @@ def _nuts_min_ess(params, num_chains):
 
 def nuts_rows(seeds, *, quick=False, scene=None, settings=None):
     """NUTS on the full joint against the collapsed sampler, same data, same run."""
-    from bayescal.nuts import nuts_available, sample_nuts
+    from bayescal.mcmc.nuts import nuts_available, sample_nuts
 
     scene = dict(NUTS_SCENE, **(scene or {}))
     settings = dict(NUTS_SETTINGS, **(settings or {}))
@@ -237,8 +237,8 @@ def nuts_rows(seeds, *, quick=False, scene=None, settings=None):
     nuts_k = 1000 * t_nuts / ess
     med, per_k, facts = _collapsed_runs(ds, ds.approx_points, seeds, sigma_scene=sig,
                                         prior=bc.Prior())
-    shortened = (" (as tests/test_nuts_reference.py)" if settings == NUTS_SETTINGS else
-                 " (shortened from tests/test_nuts_reference.py's "
+    shortened = (" (as tests/mcmc/test_nuts_reference.py)" if settings == NUTS_SETTINGS else
+                 " (shortened from tests/mcmc/test_nuts_reference.py's "
                  f"{NUTS_SETTINGS['num_warmup']} + {NUTS_SETTINGS['num_samples']})")
     return [
         (NAME, f"NumPyro NUTS full joint ({8 + 2 * scene['n_points']} dims), {where}",

@@ -160,14 +160,15 @@ def _large_room_580():
 
 def _dense_joint_lsq(ds, sigma_scene, *, max_nfev):
     """Baseline for the simultaneous fit: the same whitened residuals (pixel, scene and
-    prior rows of bayescal.model.LaserLikelihood and bayescal.priors.Prior) handed to
+    prior rows of bayescal.likelihood.points.LaserLikelihood and
+    bayescal.likelihood.priors.Prior) handed to
     scipy.optimize.least_squares over all 8 + 2N unknowns at once, with a dense '2-point'
     finite-difference Jacobian and no Schur complement (internal API on purpose: the
     baseline must share the model to be a fair comparison)."""
     from scipy.optimize import least_squares
 
-    from bayescal.model import LaserLikelihood
-    from bayescal.parameters import from_identifiable, to_identifiable
+    from bayescal.likelihood.points import LaserLikelihood
+    from bayescal.sensor.parameters import from_identifiable, to_identifiable
 
     lik = LaserLikelihood(ds.pixels, ds.approx_points, sigma_px=0.1, sigma_scene=sigma_scene)
     prior = bc.Prior()

@@ -37,7 +37,7 @@ import json
 import numpy as np
 
 import bayescal as bc
-from bayescal.studyrun import study_main
+from bayescal.cli.studyrun import study_main
 
 SIGMA_PX = 1.0
 

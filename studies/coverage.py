@@ -1,6 +1,6 @@
 """Coverage and simulation-based calibration of the Bayesian posterior (docs/validation.md, rung 4).
 
-The experiments live in :mod:`bayescal.validation` (coverage replications on
+The experiments live in :mod:`bayescal.validation.coverage` (coverage replications on
 fixed scenes, SBC, binomial bands, summaries); this script runs them at full
 size on the shared study runner and writes ``coverage.json`` with the figures
 ``coverage.png``, ``nse.png`` and ``sbc.png`` into ``--out``. Usage::
@@ -15,10 +15,10 @@ import json
 import time
 
 import bayescal as bc
-from bayescal import validation as v
-from bayescal.io import to_jsonable
+from bayescal.cli.studyrun import study_main
+from bayescal.io.data import to_jsonable
 from bayescal.plotting.validation import plot_coverage, plot_nse, plot_sbc
-from bayescal.studyrun import study_main
+from bayescal.validation import coverage as v
 
 FILES = ("coverage.json", "coverage.png", "nse.png", "sbc.png")
 

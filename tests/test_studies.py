@@ -142,7 +142,7 @@ _TINY_STUDY = '''"""tiny: a study whose trials report the process that ran them.
 import json
 import os
 
-from bayescal.studyrun import run_trials, study_main
+from bayescal.cli.studyrun import run_trials, study_main
 
 
 def trial(spec, rng):

@@ -2,7 +2,7 @@
 
 Every figure is checked by eye in the report of ``bayescal demo``; the rules
 they follow: units on every axis; residuals standardized the way that makes a
-correct model match its N(0, 1) overlay (see :mod:`bayescal.residuals`); at most a
+correct model match its N(0, 1) overlay (see :mod:`bayescal.checks.residuals`); at most a
 few dozen ellipses; per-point sds in the radial/tangential frame of the sensor.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..constants import CHI2_2_95
-from ..parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
+from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
 
 __all__ = ["plot_corner", "plot_pixel_residuals", "plot_reconstruction_ellipses",
            "radial_tangential_sd", "UNITS"]
@@ -97,7 +97,7 @@ def plot_pixel_residuals(pixels, z, *, raw=None, title=""):
         Laser pixels, px (where each point is drawn).
     z : ndarray, shape (N, 2) or (S, N, 2)
         Standardized residuals (dimensionless); with a leading draw axis, the
-        residuals under posterior draws (:func:`bayescal.residuals.posterior_residuals`).
+        residuals under posterior draws (:func:`bayescal.checks.residuals.posterior_residuals`).
     raw : ndarray, shape (N, 2), optional
         Residuals in px, for the RMS in the title (RMS per coordinate).
     title : str, optional

@@ -6,7 +6,7 @@ import numpy as np
 
 from .._validation import resolve_rng
 
-__all__ = ["plot_floor_plan", "wall_draws"]
+__all__ = ["plot_floor_plan", "plan_figure", "wall_draws"]
 
 
 def wall_draws(walls, *, covariance=None, samples=None, n_draws=50, rng=None):
@@ -46,7 +46,7 @@ def wall_draws(walls, *, covariance=None, samples=None, n_draws=50, rng=None):
 
 
 def _polygon(d, a):
-    from ..floorplan import corner_points
+    from ..scene.floorplan import corner_points
 
     c = corner_points(d, a)
     return np.vstack([c, c[:1]])
@@ -143,3 +143,18 @@ def plot_floor_plan(plan, *, walls=None, wall_covariance=None, wall_samples=None
     ax.set_title(title, fontsize=9)
     ax.legend(loc="upper right", fontsize="x-small")
     return fig
+
+
+def plan_figure(result, plan, *, recon, truth):
+    """The plan view of a floor-plan run (:func:`plot_floor_plan` of a result)."""
+    samples = getattr(result, "wall_samples", None)
+    if samples is not None:
+        walls, cov = np.mean(samples, axis=0), None
+    else:
+        walls = result.extras.get("walls")
+        cov = result.extras.get("wall_covariance")
+    pts, pcov = recon if recon is not None else (result.points, None)
+    tw = None if truth is None or truth.get("walls") is None else truth["walls"]
+    tp = None if truth is None or truth.get("points") is None else truth["points"]
+    return plot_floor_plan(plan, walls=walls, wall_covariance=cov, wall_samples=samples,
+                           points=pts, point_covariance=pcov, truth_walls=tw, truth_points=tp)

@@ -31,7 +31,7 @@ def plot_sequential_residuals(residuals):
 
     Parameters
     ----------
-    residuals : bayescal.sequential.SequentialResiduals
+    residuals : bayescal.fit.sequential.SequentialResiduals
         From :func:`bayescal.sequential_residuals`: stage 1 pattern-point pixel
         residuals (px and standardized), stage 2 laser-point distances from the
         fitted cone or plane (mm and standardized).

@@ -1,11 +1,14 @@
-"""Figures of the validation experiments (:mod:`bayescal.validation`): coverage, NSE, SBC."""
+"""Figures of the validation experiments (:mod:`bayescal.validation.coverage`).
+
+Coverage, normalised squared errors, SBC ranks.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import stats
 
-from ..validation import LEVELS, SBC_BINS, SBC_DRAWS, THETA_NAMES, binomial_band
+from ..validation.coverage import LEVELS, SBC_BINS, SBC_DRAWS, THETA_NAMES, binomial_band
 
 __all__ = ["plot_coverage", "plot_nse", "plot_sbc"]
 

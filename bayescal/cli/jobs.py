@@ -1,0 +1,402 @@
+"""Typed, validated jobs: what a ``bayescal`` command runs.
+
+A job is built from option values (the parsed command line, or keyword
+arguments from Python or the demo) by its ``build`` class method, which reads
+and checks every input file before anything is written: any problem raises
+:class:`~bayescal.errors.UsageError` or :class:`~bayescal.errors.InputError`
+naming the file, line, option or value. Running a job (:mod:`bayescal.cli.runs`)
+takes only the job object.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import shlex
+import sys
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..checks.datafile import (
+    MIN_AZIMUTH_SPAN_DEG,
+    MIN_POINTS,
+    check_geometry,
+    load_truth,
+    sigma_px_setting,
+    sigma_scene_setting,
+    warn_duplicates,
+)
+from ..errors import UsageError
+from ..io.outputs import check_out
+from . import options as op
+
+__all__ = ["SimulateJob", "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
+           "load_truth", "check_geometry", "MIN_POINTS", "MIN_AZIMUTH_SPAN_DEG"]
+
+
+def _opts(table, given):
+    o = op.defaults(table)
+    unknown = set(given) - set(o)
+    if unknown:
+        raise TypeError(f"unknown option(s) {sorted(unknown)}; expected some of {sorted(o)}")
+    o.update(given)
+    return o
+
+
+def _resolved(path):
+    return None if path is None else str(pathlib.Path(path).resolve())
+
+
+
+def _nominal_and_prior(nominal_path, prior_specs):
+    from ..io.data import read_json
+    from ..likelihood.priors import default_prior
+    from ..sensor.parameters import PARAM_NAMES, SensorParams
+
+    nominal = SensorParams.paper()
+    if nominal_path is not None:
+        raw = read_json(nominal_path)
+        raw = raw.get("params", raw) if isinstance(raw, dict) else raw
+        if not isinstance(raw, dict):
+            raise UsageError(f"--nominal {nominal_path}: expected a JSON object of the 8 "
+                             "parameters")
+        missing = [n for n in PARAM_NAMES if n not in raw]
+        if missing:
+            raise UsageError(f"--nominal {nominal_path}: missing parameter(s) "
+                             f"{', '.join(missing)}; expected all of {', '.join(PARAM_NAMES)}")
+        try:
+            nominal = SensorParams(**{n: raw[n] for n in PARAM_NAMES})
+        except (TypeError, ValueError) as exc:
+            raise UsageError(f"--nominal {nominal_path}: {exc}") from None
+    overrides = dict(prior_specs or [])
+    if nominal_path is None and not overrides:
+        return nominal, None
+    prior = default_prior(nominal)
+    prior.update(overrides)
+    return nominal, prior
+
+
+@dataclass(frozen=True)
+class SimulateJob:
+    """Simulate a room; ``options`` as in :data:`bayescal.cli.options.SIMULATE_OPTIONS`."""
+
+    range_mm: float
+    n_points: int
+    n_walls: int
+    sigma_px: float
+    approx_error: float
+    approx_model: str
+    sigma_3d: float
+    seed: int
+    out: pathlib.Path
+    force: bool = False
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job from option values (defaults for the rest)."""
+        o = _opts(op.SIMULATE_OPTIONS, options)
+        check_out(o["out"], force=o["force"])
+        o["out"] = pathlib.Path(o["out"])
+        return cls(**{k: o[k] for k in cls.__dataclass_fields__})
+
+    def dataset(self):
+        """Simulate the room (a :class:`~bayescal.Dataset`)."""
+        from ..scene.simulate import simulate_room
+
+        try:
+            return simulate_room(range_mm=self.range_mm, n_points=self.n_points,
+                                 n_walls=self.n_walls, sigma_px=self.sigma_px,
+                                 approx_error=self.approx_error, sigma_3d=self.sigma_3d,
+                                 approx_model=self.approx_model, rng=self.seed)
+        except (TypeError, ValueError) as exc:
+            raise UsageError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class CalibrateJob:
+    """A calibration with every input read and checked.
+
+    Attributes
+    ----------
+    method : {"sequential", "simultaneous", "bayes"}
+    data : LaserData or None
+        Laser pixels and approximate points (None: sequential without room data).
+    calib : CalibrationData or None
+        Calibration planes (sequential).
+    nominal : SensorParams
+    prior : dict or None
+        ``{name: frozen distribution}`` for all eight names, or None (defaults).
+    truth : dict or None
+    sigma_px, sigma_scene : the noise given to the method (None = inferred)
+    sigma_px_how, sigma_scene_how : str
+        Where they came from, for the report.
+    image_size : (int, int)
+    seed, max_steps, progress, allow_unconverged, out, force, inputs, title, command
+    plan : FloorPlan or None
+        ``--walls``: the rough floor plan in place of approximate points.
+    outliers : bool
+        The per-point outlier mixture (off with ``--no-outliers``).
+    duplicate_lines : tuple of int
+        Lines already named in the duplicate-rows warning.
+    """
+
+    method: str
+    data: object
+    calib: object
+    nominal: object
+    prior: dict | None
+    truth: dict | None
+    sigma_px: float | None
+    sigma_px_how: str
+    sigma_scene: np.ndarray | None
+    sigma_scene_how: str
+    image_size: tuple
+    seed: int
+    max_steps: int | None
+    progress: bool
+    allow_unconverged: bool
+    out: pathlib.Path
+    force: bool
+    inputs: dict = field(default_factory=dict)
+    title: str | None = None
+    command: str = ""
+    plan: object = None
+    outliers: bool = True
+    duplicate_lines: tuple = ()
+
+    @classmethod
+    def build(cls, *, title=None, **options):
+        """Validated job from option values (:data:`~bayescal.cli.options.CALIBRATE_OPTIONS`)."""
+        o = _opts(op.CALIBRATE_OPTIONS, options)
+        method = o["method"]
+        if method not in op.METHODS:
+            raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
+        nominal, prior = _nominal_and_prior(o["nominal"], o["prior"])
+        data, calib, plan = cls._read(o, nominal)
+        truth = load_truth(o["truth"], None if data is None else data.n_points)
+        spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
+                        else (None, "not used"))
+        ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
+                        else sigma_scene_setting(o["sigma_scene"], data))
+        if data is not None and method != "sequential":
+            _check_model_input(data, plan, nominal, spx, ssc)
+        dups = warn_duplicates(data) if data is not None and method != "sequential" else []
+        names = ("data", "points", "walls", "calibration", "calibration_laser", "nominal",
+                 "truth")
+        check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
+        return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
+                   truth=truth, sigma_px=spx, sigma_px_how=spx_how, sigma_scene=ssc,
+                   sigma_scene_how=ssc_how, image_size=tuple(o["image_size"]), seed=o["seed"],
+                   max_steps=o["max_steps"], progress=not o["no_progress"],
+                   allow_unconverged=o["allow_unconverged"], out=pathlib.Path(o["out"]),
+                   force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
+                   title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
+                   plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups))
+
+    @staticmethod
+    def _read(o, nominal):
+        """(LaserData or None, CalibrationData or None, FloorPlan or None), all checked."""
+        from ..io.data import (
+            check_pixels_in_image,
+            check_projection_domain,
+            load_calibration_data,
+            load_laser_data,
+        )
+
+        method, data, calib = o["method"], None, None
+        if method != "sequential" and o["data"] is None:
+            raise UsageError(f"calibrate --method {method} needs the laser data file "
+                             "(u, v, x, y, z; or u, v with --walls)")
+        plan = _read_plan(o)
+        if method == "sequential":
+            if o["calibration"] is None:
+                raise UsageError("calibrate --method sequential needs --calibration FILE (NPZ "
+                                 "of the calibration planes, or grid CSV with "
+                                 "--calibration-laser)")
+            calib = load_calibration_data(o["calibration"], o["calibration_laser"])
+        if o["data"] is not None:
+            data = load_laser_data(o["data"], o["points"],
+                                   need_points=method != "sequential" and plan is None)
+            check_pixels_in_image(data.pixels, data.pixel_table, image_size=o["image_size"],
+                                  margin=o["image_margin"])
+            if plan is not None:       # the plan is the scene: x, y, z columns are not used
+                data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
+            if data.approx_points is not None:
+                check_projection_domain(data.approx_points, data.point_table, nominal)
+        return data, calib, plan
+
+
+def _read_plan(o):
+    """The FloorPlan of ``--walls`` (None without it); refuses options that clash with it."""
+    if o["walls"] is None:
+        return None
+    from ..io.planfile import load_walls
+
+    for name, clash in (("method", o["method"] == "sequential"), ("points", o["points"]),
+                        ("sigma_scene", o["sigma_scene"] is not None)):
+        if clash:
+            flag = "--" + name.replace("_", "-")
+            raise UsageError(f"--walls {o['walls']}: not used with {flag}"
+                             + (" sequential" if name == "method" else "")
+                             + "; a floor plan replaces the approximate points and their sds "
+                             "(methods simultaneous and bayes)")
+    spec = o["distance_sd"]
+    if isinstance(spec, str):
+        spec = op.distance_sd_option(spec)
+    plan, _ = load_walls(o["walls"], distance_sd=spec, angle_sd=o["angle_sd"])
+    return plan
+
+
+def _check_model_input(data, plan, nominal, spx, ssc):
+    """Build the likelihood once to refuse input the model cannot use (exit 2)."""
+    where = ", ".join(map(str, data.paths))
+    try:
+        if plan is not None:
+            from ..likelihood.floorplan import PlanLikelihood
+
+            PlanLikelihood(data.pixels, plan, sigma_px=spx, azimuth_params=nominal)
+        else:
+            from ..likelihood.points import LaserLikelihood
+
+            LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{where}: {exc}") from None
+    check_geometry(data, center=(nominal.u0, nominal.v0))
+
+
+def _load_run(run):
+    """A calibration run's result object and summary (see :func:`bayescal.load_result`)."""
+    from ..io.runinfo import load_run
+
+    try:
+        return load_run(run)
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{run}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ReconstructJob:
+    """Reconstruct new laser pixels with a finished calibration run."""
+
+    pixels: np.ndarray
+    result: object
+    sigma_px: float | None
+    seed: int
+    out: pathlib.Path
+    force: bool
+    run: pathlib.Path
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job (:data:`~bayescal.cli.options.RECONSTRUCT_OPTIONS`)."""
+        from ..io.data import check_pixels_in_image, load_pixels
+
+        o = _opts(op.RECONSTRUCT_OPTIONS, options)
+        run = pathlib.Path(o["run"])
+        result, _ = _load_run(run)
+        pixels, table = load_pixels(o["pixels"])
+        check_pixels_in_image(pixels, table, image_size=o["image_size"],
+                              margin=o["image_margin"])
+        check_out(o["out"], force=o["force"], inputs=[o["pixels"], run])
+        return cls(pixels=pixels, result=result, sigma_px=o["sigma_px"], seed=o["seed"],
+                   out=pathlib.Path(o["out"]), force=o["force"], run=run)
+
+
+@dataclass(frozen=True)
+class ReportJob:
+    """Rebuild the report of a finished calibration run."""
+
+    run: pathlib.Path
+    result: object
+    run_info: dict
+    data: object
+    truth: dict | None
+    out: pathlib.Path
+    force: bool
+    plan: object = None
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job (:data:`~bayescal.cli.options.REPORT_OPTIONS`)."""
+        from ..io.data import load_laser_data
+        from ..io.planfile import plan_from_record
+
+        o = _opts(op.REPORT_OPTIONS, options)
+        run = pathlib.Path(o["run"])
+        result, info = _load_run(run)
+        ins = info.get("inputs", {})
+        if not ins.get("data"):
+            raise UsageError(f"{run}: the run names no laser data file; nothing to report on")
+        try:
+            plan = plan_from_record(info.get("plan"))
+        except ValueError as exc:
+            raise UsageError(f"{run}: {exc}") from None
+        data = load_laser_data(ins["data"], ins.get("points"),
+                               need_points=info.get("method") != "sequential" and plan is None)
+        if plan is not None:
+            data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
+        truth = load_truth(o["truth"] or ins.get("truth"), data.n_points)
+        check_out(o["out"], force=o["force"], inputs=[run] + data.paths)
+        return cls(run=run, result=result, run_info=info, data=data, truth=truth,
+                   out=pathlib.Path(o["out"]), force=o["force"], plan=plan)
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    """The main job end to end: simulate the large room, calibrate four ways, report."""
+
+    n_points: int
+    max_steps: int | None
+    allow_unconverged: bool
+    progress: bool
+    seed: int
+    out: pathlib.Path
+    force: bool
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job (:data:`~bayescal.cli.options.DEMO_OPTIONS`)."""
+        o = _opts(op.DEMO_OPTIONS, options)
+        if o["n_points"] < MIN_POINTS:
+            raise UsageError(f"--n-points {o['n_points']}: expected at least {MIN_POINTS}")
+        check_out(o["out"], force=o["force"])
+        return cls(n_points=o["n_points"], max_steps=o["max_steps"],
+                   allow_unconverged=o["allow_unconverged"], progress=not o["no_progress"],
+                   seed=o["seed"], out=pathlib.Path(o["out"]), force=o["force"])
+
+
+@dataclass(frozen=True)
+class StudyJob:
+    """Run ``studies/NAME.py`` with ``--out``, ``--quick``, ``--seed``, ``--workers``,
+    ``--scheduler`` passed through."""
+
+    name: str
+    script: pathlib.Path
+    quick: bool
+    workers: int
+    scheduler: str | None
+    seed: int
+    out: pathlib.Path
+    force: bool
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job (:data:`~bayescal.cli.options.STUDY_OPTIONS`)."""
+        from .studyrun import find_study
+
+        o = _opts(op.STUDY_OPTIONS, options)
+        name, script = find_study(o["name"])
+        out = pathlib.Path(o["out"] or f"out/study-{name}")
+        check_out(out, force=o["force"])
+        return cls(name=name, script=script, quick=o["quick"], workers=o["workers"],
+                   scheduler=o["scheduler"], seed=o["seed"], out=out, force=o["force"])
+
+    def argv(self, out):
+        """The study script's command line, writing into ``out``."""
+        cmd = [sys.executable, str(self.script), "--out", str(out), "--seed", str(self.seed),
+               "--workers", str(self.workers)]
+        if self.quick:
+            cmd.append("--quick")
+        if self.scheduler:
+            cmd += ["--scheduler", self.scheduler]
+        return cmd

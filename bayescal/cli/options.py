@@ -1,0 +1,339 @@
+"""Command-line option values: argparse ``type=`` validators and the option tables.
+
+Every option of every command is declared once, in the tables below
+(:data:`SIMULATE_OPTIONS`, :data:`CALIBRATE_OPTIONS`, ...). The parser is built
+from them (:func:`add_options`) and so are the defaults a job starts from
+(:func:`defaults`), so a new option is added in one place. Each validator
+raises :class:`argparse.ArgumentTypeError` with a message that names the value
+and what was expected; argparse prefixes the option name.
+
+Imports only the standard library, numpy and :mod:`bayescal.errors`, so that
+``bayescal --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import pathlib
+import re
+from dataclasses import dataclass, field
+
+__all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_float",
+           "nonneg_float", "image_size", "sigma_px_option", "sigma_scene_option",
+           "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
+           "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
+           "STUDY_OPTIONS", "DEMO_OPTIONS", "METHODS"]
+
+METHODS = ("sequential", "simultaneous", "bayes")
+_BAD = argparse.ArgumentTypeError
+
+
+# -- validators -------------------------------------------------------------------
+
+def _number(text, what):
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise _BAD(f"could not read {text!r} as a number; expected {what}") from None
+    return v
+
+
+def seed(text):
+    """A random seed: an integer >= 0."""
+    try:
+        v = int(text)
+    except (TypeError, ValueError):
+        raise _BAD(f"could not read {text!r} as an integer; expected an integer >= 0") from None
+    if v < 0:
+        raise _BAD(f"{v} is negative; expected an integer >= 0")
+    return v
+
+
+def positive_int(text):
+    """An integer >= 1."""
+    try:
+        v = int(text)
+    except (TypeError, ValueError):
+        raise _BAD(f"could not read {text!r} as an integer; expected an integer >= 1") from None
+    if v < 1:
+        raise _BAD(f"{v} is not positive; expected an integer >= 1")
+    return v
+
+
+def positive_float(text):
+    """A finite number > 0."""
+    v = _number(text, "a finite number > 0")
+    if not (math.isfinite(v) and v > 0):
+        raise _BAD(f"{text!r} is not a finite positive number; expected a number > 0")
+    return v
+
+
+def nonneg_float(text):
+    """A finite number >= 0."""
+    v = _number(text, "a finite number >= 0")
+    if not (math.isfinite(v) and v >= 0):
+        raise _BAD(f"{text!r} is not a finite number >= 0")
+    return v
+
+
+def image_size(text):
+    """``WIDTHxHEIGHT`` in px, both positive integers, as a tuple."""
+    try:
+        w, h = (int(s) for s in str(text).lower().split("x"))
+    except ValueError:
+        raise _BAD(f"{text!r}: expected WIDTHxHEIGHT in px, like 800x600") from None
+    if w <= 0 or h <= 0:
+        raise _BAD(f"{text!r}: expected a positive width and height in px, like 800x600")
+    return w, h
+
+
+def sigma_px_option(text):
+    """Pixel noise: a positive number of px, or ``infer`` (returned as the string)."""
+    if str(text).strip().lower() == "infer":
+        return "infer"
+    return positive_float(text)
+
+
+@dataclass(frozen=True)
+class SigmaScene:
+    """A parsed ``--sigma-scene``: ``kind`` in {"infer", "percent", "mm"} and its values.
+
+    ``values`` is the percentage (kind "percent"), or one or three sd in mm
+    (``inf`` allowed, kind "mm").
+    """
+
+    kind: str
+    values: tuple = ()
+    text: str = ""
+
+
+def sigma_scene_option(text):
+    """``infer``, a number of mm, ``sx,sy,sz`` (``inf`` allowed) or a percentage ``P%``."""
+    t = str(text).strip().lower()
+    if t == "infer":
+        return SigmaScene("infer", (), text)
+    if t.endswith("%"):
+        return SigmaScene("percent", (positive_float(t[:-1]),), text)
+    parts = [p.strip() for p in t.split(",")]
+    if len(parts) not in (1, 3):
+        raise _BAD(f"{text!r}: expected 'infer', a number of mm, 'sx,sy,sz' or a percentage "
+                   "like 5%")
+    vals = tuple(math.inf if p == "inf" else positive_float(p) for p in parts)
+    if not any(math.isfinite(v) for v in vals):
+        raise _BAD(f"{text!r} gives no information on any axis; expected at least one finite sd")
+    return SigmaScene("mm", vals, text)
+
+
+def distance_sd_option(text):
+    """A wall-distance sd: a number of mm, or a percentage ``P%`` of each wall's distance.
+
+    Returns a float (mm) or ``("percent", P)``.
+    """
+    t = str(text).strip()
+    if t.endswith("%"):
+        return ("percent", positive_float(t[:-1]))
+    return positive_float(t)
+
+
+_PRIOR_RE = re.compile(r"^\s*(\w+)\s*=\s*(\w+)\s*\((.*)\)\s*$")
+
+
+def prior_option(text):
+    """``NAME=DIST(ARGS)``: returns ``(name, frozen scipy.stats distribution)``."""
+    from scipy import stats
+
+    from ..sensor.parameters import PARAM_NAMES
+
+    m = _PRIOR_RE.match(str(text))
+    if not m:
+        raise _BAD(f"{text!r}: expected NAME=DIST(ARGS), e.g. 'h=norm(200, 20)'")
+    name, dist, argtext = m.groups()
+    if name not in PARAM_NAMES:
+        raise _BAD(f"{text!r}: unknown parameter {name!r}; expected one of "
+                   + ", ".join(PARAM_NAMES))
+    family = getattr(stats, dist, None)
+    if not isinstance(family, stats.rv_continuous):
+        raise _BAD(f"{text!r}: {dist!r} is not a scipy.stats continuous distribution "
+                   "(e.g. norm, uniform, truncnorm, lognorm)")
+    try:
+        frozen = family(*[float(a) for a in argtext.split(",") if a.strip()])
+        sd = float(frozen.std())
+    except (TypeError, ValueError) as exc:
+        raise _BAD(f"{text!r}: bad arguments for {dist} ({exc})") from None
+    if not (math.isfinite(sd) and sd > 0):
+        raise _BAD(f"{text!r}: the distribution has sd {sd}; expected a finite positive sd")
+    return name, frozen
+
+
+def input_file(text):
+    """An existing, readable file."""
+    p = pathlib.Path(text)
+    if not p.exists():
+        raise _BAD(f"{text}: no such file")
+    if not p.is_file():
+        raise _BAD(f"{text} is not a file")
+    return p
+
+
+def input_folder(text):
+    """An existing folder."""
+    p = pathlib.Path(text)
+    if not p.is_dir():
+        raise _BAD(f"{text}: no such folder")
+    return p
+
+
+# -- option tables ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Opt:
+    """One command-line option: argparse flags and keyword arguments."""
+
+    flags: tuple
+    kw: dict = field(default_factory=dict)
+
+    @property
+    def dest(self):
+        """The attribute name argparse gives the value."""
+        if "dest" in self.kw:
+            return self.kw["dest"]
+        name = self.flags[-1] if self.flags[0].startswith("-") else self.flags[0]
+        return name.lstrip("-").replace("-", "_")
+
+
+def add_options(parser, options):
+    """Add every :class:`Opt` of ``options`` to an argparse parser."""
+    for o in options:
+        parser.add_argument(*o.flags, **o.kw)
+
+
+def defaults(options):
+    """``{dest: default}`` of an option table (what an empty command line gives)."""
+    out = {}
+    for o in options:
+        d = o.kw.get("default")
+        if o.kw.get("action") == "store_true":
+            d = bool(d)
+        elif o.kw.get("action") == "append":
+            d = list(d or [])
+        out[o.dest] = d
+    return out
+
+
+def _out(default):
+    return (Opt(("--out",), {"default": default, "help": "output folder; must be new or "
+                             "empty unless --force"}),
+            Opt(("--force",), {"action": "store_true", "help": "replace the files bayescal "
+                               "wrote earlier in --out (never any other file)"}))
+
+
+_SEED = Opt(("--seed",), {"type": seed, "default": 0, "help": "random seed, an integer >= 0"})
+_IMAGE = (Opt(("--image-size",), {"type": image_size, "default": (800, 600), "metavar": "WxH",
+                                  "help": "image width x height in px; pixels further than "
+                                  "--image-margin outside it are rejected as bad input"}),
+          Opt(("--image-margin",), {"type": nonneg_float, "default": 50.0, "metavar": "PX",
+                                    "help": "tolerance around the image, px"}))
+
+SIMULATE_OPTIONS = (
+    Opt(("--range-mm",), {"type": positive_float, "default": 5000.0,
+                          "help": "scene size in mm (paper: 1000 small, 5000 large)"}),
+    Opt(("--n-points",), {"type": positive_int, "default": 580, "help": "laser points"}),
+    Opt(("--n-walls",), {"type": positive_int, "default": 7, "help": "walls"}),
+    Opt(("--sigma-px",), {"type": positive_float, "default": 0.1, "help": "pixel noise, px"}),
+    Opt(("--approx-error",), {"type": nonneg_float, "default": 0.05,
+                              "help": "relative error of the approximate points (0.05 is 5 "
+                              "percent)"}),
+    Opt(("--approx-model",), {"default": "fig9", "choices": ("fig9", "wall", "gaussian"),
+                              "help": "how approximate points are made (fig9: the paper's "
+                              "protocol)"}),
+    Opt(("--sigma-3d",), {"type": nonneg_float, "default": 0.0,
+                          "help": "extra 3D measurement noise, mm"}),
+    *_out("sim"), _SEED,
+)
+
+CALIBRATE_OPTIONS = (
+    Opt(("data",), {"nargs": "?", "type": input_file, "default": None,
+                    "help": "CSV or NPZ with u, v (px) and x, y, z (mm); optional sigma_x, "
+                    "sigma_y, sigma_z (mm, empty or inf = unknown axis) and sigma_px (px)"}),
+    Opt(("--points",), {"type": input_file, "help": "separate CSV/NPZ with x, y, z (and sigma "
+                        "columns), same rows as the data file"}),
+    Opt(("--walls",), {"type": input_file, "metavar": "CSV", "help": "a rough floor plan in "
+                       "place of approximate points: CSV with x0, y0, x1, y1 (mm, one wall a "
+                       "line, counterclockwise around the sensor) and optional distance_sd "
+                       "(mm), angle_sd (rad); the data file then needs only u, v"}),
+    Opt(("--distance-sd",), {"type": distance_sd_option, "default": "5%", "metavar": "SD",
+                             "help": "--walls without a distance_sd column: sd of each wall's "
+                             "distance from the axis, mm or a percentage of it like '5%%'"}),
+    Opt(("--angle-sd",), {"type": positive_float, "default": 0.01, "metavar": "RAD",
+                          "help": "--walls without an angle_sd column: sd of each wall's "
+                          "orientation, rad"}),
+    Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
+                             "point is an inlier (default: each point may be an outlier, "
+                             "see outlier_prob in points.csv)"}),
+    Opt(("--method",), {"choices": METHODS, "default": "simultaneous",
+                        "help": "calibration method"}),
+    Opt(("--calibration",), {"type": input_file, "help": "sequential: NPZ with "
+                             "CalibrationData fields, or grid CSV (plane, u, v, x, y, z)"}),
+    Opt(("--calibration-laser",), {"type": input_file, "help": "sequential with a grid CSV: "
+                                   "CSV of the laser on the planes (plane, u, v)"}),
+    Opt(("--sigma-px",), {"type": sigma_px_option, "help": "pixel noise in px, or 'infer' "
+                          "(default: the file's sigma_px column, else infer)"}),
+    Opt(("--sigma-scene",), {"type": sigma_scene_option, "help": "sd of the approximate "
+                             "points: mm, 'sx,sy,sz' (inf allowed), a percentage of each "
+                             "point's horizontal range like '5%%', or 'infer' (default: the "
+                             "file's sigma columns, else infer)"}),
+    Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values of "
+                         "the 8 parameters (JSON object, or one with a 'params' object); "
+                         "centres the default priors (default: the paper's sensor)"}),
+    Opt(("--prior",), {"type": prior_option, "action": "append", "metavar": "NAME=DIST(ARGS)",
+                       "help": "override one prior with a scipy.stats distribution, e.g. "
+                       "'h=norm(200, 20)'; repeatable"}),
+    Opt(("--truth",), {"type": input_file, "metavar": "JSON", "help": "truth.json of a "
+                       "simulation: adds the truth and the mean 3D error to the report"}),
+    Opt(("--max-steps",), {"type": positive_int, "metavar": "N", "help": "bayes: limit on the "
+                           "chain length in steps (default: the sampler's); convergence needs "
+                           "50 autocorrelation times"}),
+    Opt(("--no-progress",), {"action": "store_true", "help": "no progress bar"}),
+    Opt(("--allow-unconverged",), {"action": "store_true", "help": "bayes: exit 0 even if "
+                                   "the chains are too short for convergence"}),
+    *_IMAGE, *_out("out"), _SEED,
+)
+
+RECONSTRUCT_OPTIONS = (
+    Opt(("pixels",), {"type": input_file, "help": "CSV or NPZ with columns u, v (px)"}),
+    Opt(("--run",), {"type": input_folder, "required": True,
+                     "help": "output folder of 'bayescal calibrate'"}),
+    Opt(("--sigma-px",), {"type": nonneg_float, "help": "least-squares runs: pixel noise of "
+                          "the new pixels, px, 0 for the parameter part alone (default: the "
+                          "run's); bayes runs use the posterior's pixel noise"}),
+    *_IMAGE, *_out("reconstruction"), _SEED,
+)
+
+REPORT_OPTIONS = (
+    Opt(("run",), {"type": input_folder, "help": "output folder of 'bayescal calibrate'"}),
+    Opt(("--truth",), {"type": input_file, "metavar": "JSON",
+                       "help": "truth.json of a simulation"}),
+    *_out("report"),
+)
+
+DEMO_OPTIONS = (
+    Opt(("--n-points",), {"type": positive_int, "default": 580, "help": "laser points"}),
+    Opt(("--max-steps",), {"type": positive_int, "metavar": "N",
+                           "help": "limit on the sampler's chain length (default: the "
+                           "sampler's)"}),
+    Opt(("--allow-unconverged",), {"action": "store_true",
+                                   "help": "do not count a too-short chain as a failure"}),
+    Opt(("--no-progress",), {"action": "store_true", "help": "no progress bar"}),
+    *_out("out"), _SEED,
+)
+
+STUDY_OPTIONS = (
+    Opt(("name",), {"help": "study name (see the list above)"}),
+    Opt(("--quick",), {"action": "store_true", "help": "a short version of the study"}),
+    Opt(("--workers",), {"type": positive_int, "default": 2,
+                         "help": "local worker processes (1 runs inline)"}),
+    Opt(("--scheduler",), {"metavar": "ADDRESS", "help": "address of a Dask distributed "
+                           "scheduler to run the trials on, e.g. tcp://127.0.0.1:8786"}),
+    *_out(None), _SEED,
+)

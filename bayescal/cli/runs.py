@@ -1,0 +1,305 @@
+"""Running the jobs of :mod:`bayescal.cli.jobs`: simulate, calibrate, reconstruct, report.
+
+Each ``run_*`` function takes a validated job and an open
+:class:`~bayescal.io.outputs.OutputFolder` (files staged there move into place when
+the folder closes) and returns ``None`` on success or a failure message (exit
+code 1, outputs kept for diagnosis).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import Failure
+from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
+
+__all__ = ["run_simulate", "write_simulation", "run_calibrate", "calibrate_result",
+           "run_reconstruct", "run_report", "points_csv"]
+
+
+def write_simulation(folder, ds, *, seed):
+    """Write a simulated dataset as the files the other commands read; returns the paths.
+
+    Files: ``laser.csv`` and ``laser.npz`` (u, v, x, y, z, sigma_x/y/z, sigma_px),
+    ``calibration.npz`` (CalibrationData fields), ``grid.csv`` and
+    ``calib_laser.csv`` (the same in CSV), ``walls.csv`` (the rough floor plan of
+    the room, for ``calibrate --walls``), ``truth.json`` (true parameters, points
+    and walls, settings).
+    """
+    from dataclasses import asdict
+
+    from ..io.data import (
+        _write_csv,
+        write_calibration_npz,
+        write_json,
+        write_laser_csv,
+        write_laser_npz,
+    )
+
+    p = folder.path
+    note = (f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
+            f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}), seed {seed}\n"
+            "u, v: laser pixel (px); x, y, z: approximate point (mm, frame C); sigma_*: its sd "
+            "(mm, inf = no information); sigma_px: pixel noise (px)")
+    write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+                    sigma_px=ds.sigma_px, header_comment=note)
+    write_laser_npz(p / "laser.npz", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+                    sigma_px=ds.sigma_px)
+    cal = ds.calibration
+    write_calibration_npz(p / "calibration.npz", cal)
+    _write_csv(p / "grid.csv", {"plane": cal.grid_plane, "u": cal.grid_pixels[:, 0],
+                                "v": cal.grid_pixels[:, 1], "x": cal.grid_points[:, 0],
+                                "y": cal.grid_points[:, 1], "z": cal.grid_points[:, 2]})
+    _write_csv(p / "calib_laser.csv", {"plane": cal.laser_plane, "u": cal.laser_pixels[:, 0],
+                                       "v": cal.laser_pixels[:, 1]})
+    settings = {k: v for k, v in asdict(ds).items()
+                if k in ("sigma_px", "sigma_3d", "approx_error", "range_mm", "approx_model")}
+    write_json(p / "truth.json", {
+        "params": ds.params.as_dict(), "nominal": ds.nominal.as_dict(), "points": ds.points,
+        "pixels_true": ds.pixels_true, "walls": ds.walls, "settings": settings, "seed": seed,
+        "n_points": ds.n_points})
+    names = ["laser.csv", "laser.npz", "calibration.npz", "grid.csv", "calib_laser.csv",
+             "truth.json"]
+    if ds.floor_plan is not None:
+        from ..io.planfile import write_walls_csv
+
+        write_walls_csv(p / "walls.csv", ds.floor_plan, header_comment=(
+            f"bayescal simulate: the rough floor plan of the simulated room (seed {seed})\n"
+            "x0, y0, x1, y1: wall end points (mm, frame C, counterclockwise); distance_sd: sd "
+            "of the wall's distance from the axis (mm); angle_sd: sd of its orientation (rad)"))
+        names.insert(1, "walls.csv")
+    files = [p / n for n in names]
+    folder.add(*files)
+    return files
+
+
+def run_simulate(job, folder):
+    """Simulate and write the inputs of ``calibrate`` (see :func:`write_simulation`)."""
+    ds = job.dataset()
+    for f in write_simulation(folder, ds, seed=job.seed):
+        print(f"wrote {job.out / f.name}")
+
+
+def points_csv(path, points, cov, outlier_prob=None, *, first=None):
+    """Write points (mm) with sds and covariances (and ``outlier_prob``) as CSV.
+
+    ``first`` is an optional ``{name: column}`` dict written before the points.
+    """
+    from ..io.data import _write_csv
+
+    sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
+    cols = dict(first or {})
+    cols |= {"x": points[:, 0], "y": points[:, 1], "z": points[:, 2],
+            "sd_x": sd[:, 0], "sd_y": sd[:, 1], "sd_z": sd[:, 2],
+            "cov_xy": cov[:, 0, 1], "cov_xz": cov[:, 0, 2], "cov_yz": cov[:, 1, 2]}
+    if outlier_prob is not None:
+        cols["outlier_prob"] = np.asarray(outlier_prob, float)
+    _write_csv(path, cols)
+    return path
+
+
+def _accepts(func, name):
+    import inspect
+
+    return name in inspect.signature(func).parameters
+
+
+def _bayes(job):
+    """The posterior of a bayes job; returns ``(posterior, failure message or None)``."""
+    import bayescal as bc
+
+    from ..sensor.parameters import SensorParams
+
+    data, kw = job.data, {}
+    if job.max_steps is not None:
+        kw["max_steps"] = job.max_steps
+    if job.nominal != SensorParams.paper():
+        kw["init"] = job.nominal
+    if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
+        kw["outliers"] = False
+    if job.plan is None:
+        post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
+                                   sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
+                                   progress=job.progress, **kw)
+    else:
+        try:
+            post = bc.sample_posterior(data.pixels, job.plan, sigma_px=job.sigma_px,
+                                       prior=job.prior, rng=job.seed, progress=job.progress,
+                                       **kw)
+        except TypeError as exc:
+            raise Failure("--method bayes with --walls needs a sampler that takes a floor "
+                          f"plan; this bayescal's does not ({exc}). Use --method "
+                          "simultaneous") from None
+    if post.converged or job.allow_unconverged:
+        return post, None
+    return post, ("the posterior sampler did not converge (chains shorter than 50 "
+                  "autocorrelation times); outputs written for diagnosis. Run longer "
+                  "(--max-steps) or pass --allow-unconverged")
+
+
+def _least_squares(job):
+    """The sequential or simultaneous result of ``job`` (may raise ConvergenceError)."""
+    import bayescal as bc
+
+    from ..sensor.parameters import SensorParams
+
+    kw = {}
+    if job.prior is not None or job.nominal != SensorParams.paper():
+        kw["init"] = job.nominal
+    if job.method == "sequential":
+        # only an explicit --sigma-px describes the pattern pixels
+        if job.sigma_px_how == "given":
+            kw["sigma_px"] = job.sigma_px
+        return bc.calibrate_sequential(job.calib, **kw)
+    if job.plan is not None:
+        return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
+                                         prior=job.prior, outliers=job.outliers, **kw)
+    return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
+                                     sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
+                                     prior=job.prior, outliers=job.outliers, **kw)
+
+
+def calibrate_result(job):
+    """Run the job's method; returns ``(result, failure message or None)``.
+
+    Library messages about the input (duplicate rows, a collapsing noise level)
+    are shown with the file's line numbers; a collapsing noise level is bad
+    input (:class:`~bayescal.errors.UsageError`, exit code 2).
+    """
+    from ..checks.datafile import library_messages
+    from ..results.calibration import ConvergenceError
+
+    data = job.data
+    with library_messages(data, reported=job.duplicate_lines) if data is not None \
+            else _nothing():
+        if job.method == "bayes":
+            return _bayes(job)
+        try:
+            result = _least_squares(job)
+        except ConvergenceError as exc:
+            if exc.result is None:
+                raise Failure(f"{job.method} calibration did not converge: {exc}") from None
+            return exc.result, f"{job.method} calibration did not converge: {exc}"
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            from ..checks.fit import NoiseCollapseError
+
+            if isinstance(exc, NoiseCollapseError):
+                raise
+            raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing "
+                          "was written") from None
+    if job.sigma_px is not None:
+        result.extras["sigma_px"] = float(job.sigma_px)
+    if job.sigma_scene is not None and job.method == "simultaneous":
+        result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
+    if not result.converged:
+        return result, f"{job.method} calibration did not converge: {result.message}"
+    return result, None
+
+
+def _nothing():
+    import contextlib
+
+    return contextlib.nullcontext()
+
+
+def _recon(job, result):
+    """(points, covariances) of the laser points for points.csv and the report, or None."""
+    data = job.data
+    if data is None:
+        return None
+    if hasattr(result, "param_samples"):
+        return result.points, result.point_covariance()
+    if result.points is not None and "point_covariance" in result.extras:
+        return result.points, result.point_covariance()
+    return tuple(result.reconstruct(data.pixels))
+
+
+def _prior_of(job):
+    if job.method != "simultaneous":
+        return None
+    from ..likelihood.priors import default_prior
+
+    prior = default_prior(job.nominal)
+    prior.update(job.prior or {})
+    return prior
+
+
+def run_calibrate(job, folder):
+    """Calibrate, then write the result, ``run.json``, ``points.csv`` and the report."""
+    from ..io.data import write_json
+    from ..report.report import write_report
+
+    out = folder.path
+    result, failed = calibrate_result(job)
+    if hasattr(result, "param_samples"):
+        folder.add(result.save(out / POSTERIOR_FILE, overwrite=True))
+    else:
+        folder.add(result.save(out / RESULT_FILE, overwrite=True))
+    recon = _recon(job, result)
+    if recon is not None:
+        folder.add(points_csv(out / "points.csv", *recon,
+                              outlier_prob=getattr(result, "outlier_prob", None)))
+    acc = None
+    if job.data is not None and (recon is not None or result.points is not None):
+        info = run_record(job)
+        files, acc = write_report(out, result, info, data=job.data, recon=recon,
+                                  truth=job.truth, prior=_prior_of(job), title=job.title)
+        folder.add(*files.values())
+    folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc)))
+    from ..checks.datafile import located_summary
+
+    print(located_summary(result, job.data))
+    if acc:
+        print(f"mean 3D error against the truth: {acc['mean_error_mm']:.1f} mm")
+    print(f"wrote {job.out}/" + (POSTERIOR_FILE if job.method == "bayes" else RESULT_FILE)
+          + (f", {job.out}/report.html" if (out / "report.html").exists() else ""))
+    return failed, acc
+
+
+def run_reconstruct(job, folder):
+    """Triangulate new pixels with error bars; writes ``reconstruction.csv`` and a plot."""
+    import sys
+
+    from ..plotting import plot_reconstruction_ellipses, savefig
+
+    out, result = folder.path, job.result
+    if hasattr(result, "param_samples"):
+        mean, cov = result.reconstruct(job.pixels, rng=job.seed)
+    else:
+        mean, cov = result.reconstruct(job.pixels, sigma_px=job.sigma_px)
+    path = points_csv(out / "reconstruction.csv", mean, cov,
+                      first={"u": job.pixels[:, 0], "v": job.pixels[:, 1]})
+    folder.add(path, savefig(plot_reconstruction_ellipses(mean, cov), out / "reconstruction.png"))
+    miss = int((~np.isfinite(mean).all(axis=1)).sum())
+    if miss:
+        print(f"bayescal: warning: {miss} pixel(s) have rays that miss the laser cone; their "
+              "rows are nan", file=sys.stderr)
+    sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
+    method = getattr(result, "method", "bayes") if not hasattr(result, "param_samples") \
+        else "bayes"
+    print(f"reconstructed {len(job.pixels)} pixels with the {method} calibration of "
+          f"{job.run}; median sd {np.nanmedian(np.linalg.norm(sd, axis=1)):.3g} mm")
+    print(f"wrote {job.out / 'reconstruction.csv'}, {job.out / 'reconstruction.png'}")
+
+
+def run_report(job, folder):
+    """Rebuild ``report.md`` and ``report.html`` of a calibration run."""
+    from ..io.data import read_table
+    from ..report.report import write_report
+
+    recon = None
+    pts = job.run / "points.csv"
+    if pts.is_file():
+        c = read_table(pts, required=("x", "y", "z", "sd_x", "sd_y", "sd_z", "cov_xy", "cov_xz",
+                                      "cov_yz")).columns
+        cov = np.empty((len(c["x"]), 3, 3))
+        for i, a in enumerate("xyz"):
+            cov[:, i, i] = c[f"sd_{a}"] ** 2
+        cov[:, 0, 1] = cov[:, 1, 0] = c["cov_xy"]
+        cov[:, 0, 2] = cov[:, 2, 0] = c["cov_xz"]
+        cov[:, 1, 2] = cov[:, 2, 1] = c["cov_yz"]
+        recon = (np.column_stack([c["x"], c["y"], c["z"]]), cov)
+    files, _ = write_report(folder.path, job.result, job.run_info, data=job.data, recon=recon,
+                            truth=job.truth)
+    folder.add(*files.values())
+    print(f"wrote {job.out / 'report.html'} and {job.out / 'report.md'}")

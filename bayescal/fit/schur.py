@@ -1,0 +1,216 @@
+"""Levenberg-Marquardt on the parameters and every point, points eliminated by Schur.
+
+The MAP solver of :func:`bayescal.calibrate_simultaneous`: unknowns ``(theta, phi)``
+and each point's scene coordinates ``q_i``; each point couples only to the
+parameters, so its 2x2 block is eliminated by a Schur complement and an
+iteration costs O(N). Per-point weights make it the M-step of the outlier
+mixture's EM (``docs/robustness.md``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sensor.parameters import from_identifiable, identifiable_jacobian
+
+__all__ = ["solve_map", "MapSolution", "damped_step"]
+
+
+class MapSolution:
+    """Raw output of :func:`solve_map` (internal; users get a CalibrationResult).
+
+    Attributes
+    ----------
+    theta : ndarray, shape (7,)
+    q : ndarray, shape (N, 2)
+    cost : float
+        Half the sum of squared whitened residuals (prior rows included).
+    phi : float
+        phi at the MAP (set by the priors alone).
+    cov_theta : ndarray, shape (7, 7)
+        Laplace covariance of theta (inverse Schur complement), unscaled.
+    cov_theta_phi : ndarray, shape (8, 8)
+        Laplace covariance of (theta, phi).
+    cov_points : ndarray, shape (N, 3, 3)
+        Laplace covariance of each 3D point (parameters' uncertainty included).
+    """
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def _prior_rows(prior, psi):
+    """Prior rows on the 8 paper parameters at ``psi = (theta, phi)`` and their Jacobian."""
+    a = from_identifiable(psi[:7], psi[7])
+    r, D = prior.residuals(a, jacobian=True)
+    return r, D @ identifiable_jacobian(psi[:7], psi[7])
+
+
+def _normal_equations(lik, prior, psi, q, sig, w, u):
+    """Normal equations of the point-weighted cost ``sum_i u_i |R_i|^2 / 2 + prior``.
+
+    ``B``, ``C`` and ``gq`` are returned unweighted: a point's weight scales its
+    whole block, which leaves its own q-step unchanged and scales its Schur
+    contribution to theta by ``u_i`` (see :func:`_schur_step`).
+    """
+    R, Jt, Jq = lik.residuals(psi[:7], q, sig, w, jacobian=True)
+    rp, Jp = _prior_rows(prior, psi)
+    A = Jp.T @ Jp
+    A[:7, :7] += np.einsum("n,nki,nkj->ij", u, Jt, Jt)
+    B = np.zeros((lik.n, 8, 2))
+    B[:, :7] = np.einsum("nki,nkj->nij", Jt, Jq)
+    C = np.einsum("nki,nkj->nij", Jq, Jq)
+    gt = Jp.T @ rp
+    gt[:7] += np.einsum("n,nki,nk->i", u, Jt, R)
+    gq = np.einsum("nki,nk->ni", Jq, R)
+    cost = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)
+    return cost, A, B, C, gt, gq, R
+
+
+def _cost(lik, prior, psi, q, sig, w, u):
+    R = lik.residuals(psi[:7], q, sig, w)
+    rp = prior.residuals(from_identifiable(psi[:7], psi[7]))
+    c = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)
+    return c if np.isfinite(c) else np.inf
+
+
+def _schur_step(A, B, C, gt, gq, lam, u):
+    Ad = A + lam * np.diag(np.diag(A))
+    Cd = C.copy()
+    Cd[:, [0, 1], [0, 1]] *= 1.0 + lam
+    Cinv = np.linalg.inv(Cd)
+    BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]          # (N, 8, 2)
+    S = Ad - np.einsum("nik,njk->ij", BC, B)
+    rhs = -(gt - np.einsum("nik,nk->i", BC, gq))
+    dt = np.linalg.solve(S, rhs)
+    dq = -np.einsum("nij,nj->ni", Cinv, gq + np.einsum("nki,k->ni", B, dt))
+    return dt, dq
+
+
+def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
+              max_iter=200, ftol=1e-12, xtol=1e-10, weights=None):
+    """Levenberg-Marquardt on (theta, phi) and the scene coordinates (noise levels fixed).
+
+    ``phi`` is an unknown like the others, but only the prior rows see it: the
+    solution sits on the phi/alpha ridge where the priors of phi, alpha_u and
+    alpha_v balance, and the Laplace covariance carries that ridge.
+
+    Parameters
+    ----------
+    lik : LaserLikelihood
+    prior : Prior
+    theta0 : ndarray, shape (7,)
+    q0 : ndarray, shape (N, 2)
+    phi : float, optional
+        Starting phi (default: the prior mean).
+    sigma_px : float
+        Pixel noise used for whitening.
+    w_scene : ndarray, shape (N, 3)
+        Inverse scene standard deviations.
+    weights : ndarray, shape (N,), optional
+        Per-point weights ``u_i`` of the squared residuals (default 1): the
+        M-step of the outlier mixture's EM, ``u_i = (1 - r_i) + r_i / c^2``.
+
+    Returns
+    -------
+    MapSolution
+    """
+    phi = float(prior.dists["phi"].mean()) if phi is None else float(phi)
+    sig = np.asarray(sigma_px, dtype=float)
+    theta = np.append(np.asarray(theta0, dtype=float), phi)
+    q = np.array(q0, dtype=float)
+    u = np.ones(lik.n) if weights is None else np.asarray(weights, dtype=float)
+    lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
+    cost, A, B, C, gt, gq, R = _normal_equations(lik, prior, theta, q, sig, w_scene, u)
+    if not np.isfinite(cost):
+        raise ValueError("the starting point puts some laser points outside the model's "
+                         "domain (non-finite residuals); give a better init")
+    n_done = 0
+    for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
+        # the two closures are called within this iteration only (so B023 does not apply)
+        step, new_cost, lam, n = damped_step(
+            lambda lam: _schur_step(A, B, C, gt, gq, lam, u),  # noqa: B023
+            lambda st: _cost(lik, prior, theta + st[0], q + st[1], sig, w_scene, u),  # noqa: B023
+            cost, lam)
+        nfev += n
+        if step is None:
+            converged, message = True, "no further decrease of the cost (at a minimum)"
+            break
+        dt, dq = step
+        small_step = (np.all(np.abs(dt) <= xtol * (np.abs(theta) + xtol))
+                      and np.all(np.abs(dq) <= xtol * (np.abs(q) + 1.0)))
+        theta, q = theta + dt, q + dq
+        rel = (cost - new_cost) / max(new_cost, 1e-300)
+        cost, A, B, C, gt, gq, R = _normal_equations(lik, prior, theta, q, sig, w_scene, u)
+        lam = max(lam / 3.0, 1e-12)
+        if rel < ftol or small_step:
+            converged, message = True, "converged (relative cost decrease or step below tolerance)"
+            break
+    # Laplace covariance at the solution (undamped Schur complement)
+    Cinv = np.linalg.inv(C)
+    BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]
+    S = A - np.einsum("nik,njk->ij", BC, B)
+    cov_full = np.linalg.inv(S)                      # (theta, phi)
+    _, Jp = _prior_rows(prior, theta)
+    info_data = (S - Jp.T @ Jp)[:7, :7]              # what the data alone say about theta
+    cov_t = cov_full[:7, :7]
+    return MapSolution(theta=theta[:7], q=q, cost=float(cost), cov_theta=cov_t,
+                       cov_theta_phi=cov_full, Cinv=Cinv, B=B[:, :7], R=R, A=A, nfev=nfev,
+                       n_iter=n_done, converged=converged, message=message, phi=float(theta[7]),
+                       info_data=info_data, weights=u,
+                       cov_points=_point_covariances(theta[:7], q, Cinv, B[:, :7], cov_t, u))
+
+
+def damped_step(propose, cost_of, cost, lam, *, max_tries=30):
+    """Levenberg-Marquardt's inner loop: raise the damping until a step lowers the cost.
+
+    Parameters
+    ----------
+    propose : callable
+        ``propose(lam)`` -> the step at damping ``lam`` (may raise LinAlgError).
+    cost_of : callable
+        ``cost_of(step)`` -> the cost after the step.
+    cost : float
+        The current cost.
+    lam : float
+        The current damping.
+
+    Returns
+    -------
+    step : object or None
+        The accepted step, or None when no damping up to ``max_tries`` raises helped.
+    new_cost, lam : float
+    nfev : int
+        Cost evaluations used.
+    """
+    nfev = 0
+    for _ in range(max_tries):
+        try:
+            step = propose(lam)
+        except np.linalg.LinAlgError:
+            lam *= 10
+            continue
+        new_cost = cost_of(step)
+        nfev += 1
+        if new_cost < cost:
+            return step, new_cost, lam, nfev
+        lam *= 4.0
+    return None, cost, lam, nfev
+
+
+def _point_covariances(theta, q, Cinv, B, cov_t, u):
+    """3x3 covariance of each point from the joint Laplace covariance of (theta, q).
+
+    A point of weight ``u_i`` has its own block ``u_i C_i``: its conditional
+    covariance is ``C_i^-1 / u_i`` (an outlier's point is barely determined).
+    """
+    from ..sensor.laser import cone_point_theta
+
+    _, Gq, Gt = cone_point_theta(theta, q, jacobian=True)       # (N,3,2), (N,3,7)
+    K = -np.einsum("nij,nkj,kl->nil", Cinv, B, cov_t)            # cov(q_i, theta): (N,2,7)
+    cov_q = Cinv / u[:, None, None] + np.einsum("nij,nkj,kl,nlm,nmp->nip", Cinv, B, cov_t, B, Cinv)
+    out = (np.einsum("nia,nab,njb->nij", Gq, cov_q, Gq)
+           + np.einsum("nia,nab,njb->nij", Gq, K, Gt)
+           + np.einsum("nia,nab,njb->nij", Gt, np.swapaxes(K, 1, 2), Gq)
+           + np.einsum("nia,ab,njb->nij", Gt, cov_t, Gt))
+    return out

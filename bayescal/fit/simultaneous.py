@@ -1,0 +1,385 @@
+"""Simultaneous calibration (paper section III): camera and laser cone in one least squares.
+
+Unknowns: the seven identifiable parameters ``theta`` and, by default, every
+laser point through its scene coordinates ``q_i = (x_i, y_i)`` (the point is
+``(x_i, y_i, rho_i / tan(beta) - h)`` on the cone), i.e. ``7 + 2N`` unknowns
+against ``2N`` pixel rows, up to ``3N`` scene rows and 8 weak prior rows.
+This is the paper's complete model (eqs. 1 and 6) with the cone written as a
+hard constraint: the point's azimuth is the pixel's (eqs. 4-5) through eq. (1).
+
+The solver is Levenberg-Marquardt with the points eliminated by a Schur
+complement (each point couples only to ``theta``), so an iteration costs O(N)
+and the 580-point room solves in a fraction of a second. The weak priors
+(design value +- tolerance, :func:`bayescal.likelihood.priors.default_prior`) are what keep
+the large room from collapsing to ``h -> 0``: without them a joint least squares
+at 5000 mm ended at ``h = 1 mm``, ``alpha_u = 1`` (fact 3, ``docs/model.md``,
+"Measured facts"); ``phi`` is fixed at its prior mean since the data cannot see
+it (only ``alpha (xi + phi)`` is seen: fact 1, same section).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..checks.fit import check_noise_levels
+from ..checks.inputs import check_calibration_input
+from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE, annealed_outlier_prob, em_update
+from ..likelihood.points import LaserLikelihood
+from ..likelihood.priors import Prior
+from ..results.calibration import (
+    CalibrationResult,
+    ConvergenceError,
+    covariance_8_from_identifiable,
+    identifiability_report,
+)
+from ..scene.floorplan import FloorPlan
+from ..sensor.parameters import (
+    IDENTIFIABLE_NAMES,
+    PARAM_NAMES,
+    SensorParams,
+    from_identifiable,
+    identifiable_jacobian,
+    to_identifiable,
+)
+from .floorplan import calibrate_plan
+from .schur import MapSolution, solve_map
+
+__all__ = ["calibrate_simultaneous", "solve_map", "MapSolution"]
+
+
+def _resolve_init(init, prior):
+    if init is None:
+        return prior.mean()
+    if isinstance(init, SensorParams):
+        return init
+    raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
+
+
+_REQUIRED = object()      # sigma_scene: required with approximate points, absent with a plan
+
+
+def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQUIRED, prior=None,
+                           init=None, estimate_points=True, absolute_sigma=True,
+                           max_iter=200, raise_on_failure=True, outliers=True,
+                           outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+    """Calibrate camera and laser cone together from laser pixels and approximate points.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        Laser pixels ``(u, v)``, px.
+    approx_points : array_like, shape (N, 3), or FloorPlan
+        Approximate 3D positions of the laser points in frame C, mm; or a
+        rough floor plan (:class:`~bayescal.FloorPlan`): the points are then on
+        its uncertain walls (``docs/floorplan.md``), ``sigma_scene`` is not
+        given and ``extras`` adds ``walls`` (W, 2) and ``wall_covariance``.
+    sigma_px : float or None
+        Pixel noise standard deviation, px; ``None`` estimates it (alternating
+        with the fit, from the pixel residuals).
+    sigma_scene : float, array_like broadcastable to (N, 3), or None
+        Standard deviation of the approximate points' error, mm (``inf`` on
+        an axis = no information, e.g. z derived from the nominal cone). A
+        relative error is passed as e.g. ``0.05 * abs(approx_points)``.
+        ``None`` estimates ``kappa`` in ``sigma_scene_i = kappa * rho_i``.
+    prior : dict, optional
+        ``{name: scipy.stats frozen distribution}`` for any of the eight
+        parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
+    init : SensorParams, optional
+        Starting values (default: the prior means).
+    estimate_points : bool, optional
+        Estimate the N points with the parameters (default, the paper's
+        ``3N + 8`` unknowns written as ``2N + 7`` identifiable ones). With
+        False the points are taken as exact (``approx_points``), only their
+        pixel rows enter, and the cone is fitted through them.
+    absolute_sigma : bool, optional
+        If True (default) the covariance uses the given noise levels as they
+        are; if False it is scaled by the reduced chi-square (the classical
+        least-squares convention).
+    max_iter : int, optional
+    raise_on_failure : bool, optional
+        Raise :class:`~bayescal.ConvergenceError` (carrying the flagged result)
+        when the solver does not converge; otherwise return it with
+        ``converged=False``.
+    outliers : bool, optional
+        Per-point outlier mixture (default True): each point is an inlier with
+        probability ``1 - w`` or an outlier whose residuals have
+        ``outlier_scale`` times the noise; solved by EM (weighted Schur LM).
+        ``result.outlier_prob`` (N,) gives each point's outlier probability.
+        On clean data it changes nothing that matters (``docs/robustness.md``).
+        Ignored with ``estimate_points=False``. With a FloorPlan the same mixture
+        (``docs/robustness.md``, "Floor plans").
+    outlier_scale : float, optional
+        Noise inflation of the outlier component (default 100).
+    outlier_prior : tuple of float, optional
+        Beta(a, b) prior of the outlier fraction ``w`` (default (1, 19)).
+
+    Returns
+    -------
+    CalibrationResult
+        ``params``; ``points`` (N, 3) the jointly estimated laser points
+        (``estimate_points=True``) or the triangulated pixels; ``covariance``
+        (8, 8) with ``phi``'s prior variance on the phi/alpha ridge;
+        ``extras["point_covariance"]`` (N, 3, 3); ``extras["map"]``.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, sigma_px=0.5, approx_error=0.01,
+    ...                       approx_model="gaussian", rng=0)
+    >>> res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.5,
+    ...                                 sigma_scene=ds.sigma_scene)
+    >>> res.converged
+    True
+    """
+    if isinstance(approx_points, FloorPlan):
+        if sigma_scene is not _REQUIRED or not estimate_points:
+            raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
+                            "(the plan carries its own sds); leave them out")
+        return calibrate_plan(pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
+                              absolute_sigma=absolute_sigma, max_iter=max_iter,
+                              raise_on_failure=raise_on_failure, outliers=outliers,
+                              outlier_scale=outlier_scale, outlier_prior=outlier_prior)
+    if sigma_scene is _REQUIRED:
+        raise TypeError("calibrate_simultaneous() missing required keyword argument "
+                        "'sigma_scene' (needed with approximate points)")
+    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    init = _resolve_init(init, prior)
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    pixels, approx_points = check_calibration_input(pixels, approx_points,
+                                                    sigma_scene=sigma_scene,
+                                                    center=(init.u0, init.v0))
+    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
+                          outliers=outliers and estimate_points, outlier_scale=outlier_scale,
+                          outlier_prior=outlier_prior)
+    theta0 = to_identifiable(init.to_array())
+    q0 = lik.initial_q(theta0)
+    if not estimate_points:
+        return _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
+
+    fit = _fit_map(lik, prior, theta0, q0, max_iter)
+    if lik.n_noise:
+        check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
+    return _make_result(lik, prior, fit, absolute_sigma, raise_on_failure)
+
+
+class _MapFit:
+    """The MAP and the noise levels / outlier state it was solved at (internal)."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+    def extra(self, lik):
+        """The likelihood's extra globals at this fit, shape (n_extra,)."""
+        e = []
+        if lik.infer_px:
+            e.append(np.log(self.sig))
+        if lik.infer_scene:
+            e.append(np.log(self.kappa))
+        if lik.outliers:
+            e.append(np.log(self.w) - np.log1p(-self.w))
+        return np.array(e)
+
+    def w_scene(self, lik):
+        if lik.infer_scene:
+            return np.ones((1, 3)) / (self.kappa * lik.rho[:, None])
+        return lik.w_scene
+
+
+def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
+    """MAP of the (mixture) model: LM on (theta, q), alternating with the noise levels and,
+    with outliers, with the EM responsibilities ``r`` and the outlier fraction ``w``.
+
+    EM for the outlier mixture: the E-step computes each point's outlier probability
+    with the points integrated out (:meth:`LaserLikelihood.outlier_prob`); the M-step is
+    the least squares with per-point weights ``(1 - r_i) + r_i / c^2`` (the outlier
+    component is the same Gaussian with c times the noise) and the logit-scale mode
+    ``w = (sum r + a) / (N + a + b)``. The first E-step is taken at the start with the
+    noise scaled to the median point's residual (annealing), so that a gross error
+    never enters the first fit at full weight.
+    """
+    a, b = lik.outlier_prior
+    fit = _MapFit(sig=1.0 if lik.infer_px else lik.sigma_px, kappa=0.05, sol=None,
+                  w=a / (a + b), r=np.zeros(lik.n), n_rounds=0)
+    u = np.ones(lik.n)
+    if lik.outliers:
+        fit.r = _initial_outlier_prob(lik, fit, theta0, q0)
+        u = em_update(fit.r, lik.outlier_prior, lik.outlier_scale)[1]
+    rounds = max_rounds if lik.outliers else 1 + 3 * lik.n_noise
+    for k in range(rounds):
+        fit.sol = solve_map(lik, prior, theta0, q0, sigma_px=fit.sig, w_scene=fit.w_scene(lik),
+                            max_iter=max_iter, weights=u)
+        fit.n_rounds = k + 1
+        theta0, q0 = fit.sol.theta, fit.sol.q
+        old = (fit.sig, fit.kappa)
+        if lik.n_noise:
+            fit.sig, fit.kappa = _fit_noise(lik, fit)
+        if not lik.outliers:
+            continue
+        r = lik.outlier_prob(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q,
+                             n_iter=2)
+        r = np.where(np.isfinite(r), r, 1.0)
+        change = np.max(np.abs(r - fit.r))
+        fit.r = r
+        fit.w, u = em_update(r, lik.outlier_prior, lik.outlier_scale)
+        noise_change = max(abs(np.log(fit.sig / old[0])), abs(np.log(fit.kappa / old[1])))
+        if change < r_tol and noise_change < 1e-4 and k > 0:
+            break
+    return fit
+
+
+def _initial_outlier_prob(lik, fit, theta0, q0):
+    """Outlier probabilities at the start (:func:`~.outliers.annealed_outlier_prob`;
+    ``m_i`` at the point's own best q, ``dof_i = n_rows_i - 2``)."""
+    extra = fit.extra(lik)
+    m = lik.min_residual(np.concatenate([theta0, extra]), q0)
+    c, n_rows = lik.outlier_scale, lik._n_rows
+
+    def log_ratio(mm):                  # mix's: two latent dimensions, n_rows rows
+        return 0.5 * mm * (1.0 - 1.0 / c**2) + (2.0 - n_rows) * np.log(c)
+
+    r = annealed_outlier_prob(m, np.maximum(n_rows - 2, 1), extra[-1], log_ratio)
+    return np.zeros(lik.n) if r is None else r
+
+
+def _fit_noise(lik, fit):
+    """Maximise the collapsed likelihood (points integrated out) over the inferred noise.
+
+    The joint maximum over points and noise degenerates (each point can absorb its two
+    pixel rows, driving sigma_px to 0); integrating the points out keeps their degrees
+    of freedom (the REML-like behaviour of the flat noise prior). With outliers the
+    likelihood is the mixture's at the current outlier fraction.
+    """
+    from scipy.optimize import minimize
+
+    sol, sig, kappa = fit.sol, fit.sig, fit.kappa
+    tail = fit.extra(lik)[lik.n_noise:]
+    lik.set_reference_noise(sigma_px=sig, kappa=kappa)
+    x0 = []
+    if lik.infer_px:
+        x0.append(np.log(sig))
+    if lik.infer_scene:
+        x0.append(np.log(kappa))
+
+    def f(e):
+        psi = np.concatenate([sol.theta, e, tail])
+        v = lik.laplace(psi, sol.q, n_iter=3)[0] + lik.log_prior_extra(psi[7:])
+        return -v if np.isfinite(v) else 1e300
+
+    e = minimize(f, np.array(x0), method="Nelder-Mead",
+                 options={"xatol": 1e-4, "fatol": 1e-6}).x
+    k = 0
+    if lik.infer_px:
+        sig = float(np.exp(e[k]))
+        k += 1
+    if lik.infer_scene:
+        kappa = float(np.exp(e[k]))
+    return sig, kappa
+
+
+def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
+    from ..sensor.laser import cone_point_theta
+
+    n = lik.n
+    sol, sig, w = fit.sol, fit.sig, np.broadcast_to(fit.w_scene(lik), (n, 3))
+    noise = {"sigma_px": sig, "kappa": fit.kappa if lik.infer_scene else None}
+    if lik.outliers:
+        noise["outlier_frac"] = float(fit.w)
+    R = sol.R
+    # degrees of freedom of the data rows only: the 8 prior rows carry no noise and
+    # phi is fixed by them alone, so neither enters the noise estimate
+    n_res = 2 * n + int(np.count_nonzero(w))
+    n_unk = 7 + 2 * n
+    # outliers (probability r) leave the noise statistics: each point counts 1 - r
+    keep = 1.0 - fit.r
+    n_res_in = float(np.sum(keep * (2 + np.count_nonzero(w, axis=1))))
+    chi2 = float(np.sum(keep * np.sum(R * R, axis=1)))
+    red = chi2 / max(n_res_in - 7 - 2 * np.sum(keep), 1)
+    scale = 1.0 if absolute_sigma else red
+    cov7 = sol.cov_theta * scale
+    J = identifiable_jacobian(sol.theta, sol.phi)
+    cov8 = J @ (sol.cov_theta_phi * scale) @ J.T
+    cov8 = 0.5 * (cov8 + cov8.T)
+    params = SensorParams.from_array(from_identifiable(sol.theta, sol.phi))
+    points = cone_point_theta(sol.theta, sol.q)
+    pix_rms = float(np.sqrt(np.sum(keep[:, None] * (R[:, :2] * sig) ** 2)
+                            / max(2 * np.sum(keep), 1e-300)))
+    mask = w > 0
+    scene_res = np.where(mask, R[:, 2:] / np.where(mask, w, 1.0), 0.0)
+    scene_rms = float(np.sqrt(np.sum(keep[:, None] * scene_res**2)
+                              / max(np.sum(keep[:, None] * mask), 1e-300)))
+    sigma_hat = float(sig * np.sqrt(red))
+    # identifiability of the 8 paper parameters from the data alone (points reduced out
+    # by the Schur complement, priors left out): square-root rows of that information
+    e, V = np.linalg.eigh(0.5 * (sol.info_data + sol.info_data.T))
+    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
+    dtheta_da = np.linalg.inv(identifiable_jacobian(sol.theta, sol.phi))[:7]   # (7, 8)
+    report = identifiability_report(root @ dtheta_da, PARAM_NAMES)
+    result = CalibrationResult(
+        method="simultaneous", params=params, points=points, covariance=cov8,
+        covariance_identifiable=cov7,
+        residual_rms={"pixel_px": pix_rms, "scene_mm": scene_rms},
+        sigma_px_estimated=sigma_hat, n_residuals=n_res, n_unknowns=n_unk,
+        converged=bool(sol.converged and np.all(np.isfinite(sol.theta))), message=sol.message,
+        nfev=sol.nfev, identifiability=report,
+        extras={"point_covariance": sol.cov_points * scale, "map": sol, "noise": noise,
+                "theta": sol.theta, "identifiable_names": IDENTIFIABLE_NAMES,
+                "reduced_chi2": red, "em_rounds": fit.n_rounds},
+        outlier_prob=fit.r.copy() if lik.outliers else None)
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(f"simultaneous calibration did not converge: {sol.message}",
+                               result=result)
+    return result
+
+
+def _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):
+    """Points taken as exact: pixel rows of eq. (1) and the cone through the points."""
+    from scipy.optimize import least_squares
+
+    from ..sensor.camera import project_theta
+    from ..sensor.laser import triangulate_theta
+
+    if lik.infer_px or lik.infer_scene:
+        raise ValueError("estimate_points=False needs sigma_px and sigma_scene given (not None)")
+    sig = lik.sigma_px
+    P = lik.approx
+    phi = float(prior.dists["phi"].mean())
+    # scene sd along the cone normal, per point
+    rho = np.hypot(P[:, 0], P[:, 1])
+
+    def fun(t):
+        uv, _ = project_theta(t, P)
+        b = t[6]
+        nrm = np.stack([np.cos(b) * P[:, 0] / rho, np.cos(b) * P[:, 1] / rho,
+                        np.full(len(P), -np.sin(b))], -1)
+        with np.errstate(divide="ignore"):
+            var_n = np.sum(nrm**2 / lik.w_scene**2, axis=1)       # inf where an axis is blind
+        s_n = 1.0 / np.sqrt(var_n)
+        dist = rho * np.cos(b) - (P[:, 2] + t[5]) * np.sin(b)
+        rp = prior.residuals(from_identifiable(t, phi))
+        return np.concatenate([((uv - lik.pixels) / sig).ravel(), dist * s_n, rp])
+
+    t0 = to_identifiable(init.to_array())
+    opt = least_squares(fun, t0, x_scale="jac", method="lm", xtol=1e-12, ftol=1e-12)
+    J = opt.jac
+    data_rows = opt.fun[:-8]                          # the last 8 rows are the priors
+    n_res, n_unk = len(data_rows), 7
+    red = float(data_rows @ data_rows) / max(n_res - n_unk, 1)
+    cov7 = np.linalg.inv(J.T @ J) * (1.0 if absolute_sigma else red)
+    cov8 = covariance_8_from_identifiable(opt.x, phi, cov7, float(prior.dists["phi"].var()))
+    params = SensorParams.from_array(from_identifiable(opt.x, phi))
+    pts, _ = triangulate_theta(opt.x, lik.pixels)
+    uv, _ = project_theta(opt.x, P)
+    dtheta_da = np.linalg.inv(identifiable_jacobian(opt.x, phi))[:7]
+    result = CalibrationResult(
+        method="simultaneous", params=params, points=pts, covariance=cov8,
+        covariance_identifiable=cov7,
+        residual_rms={"pixel_px": float(np.sqrt(np.mean((uv - lik.pixels) ** 2)))},
+        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
+        converged=bool(opt.success), message=str(opt.message), nfev=int(opt.nfev),
+        identifiability=identifiability_report(J @ dtheta_da, PARAM_NAMES),
+        extras={"theta": opt.x, "reduced_chi2": red})
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(f"simultaneous calibration did not converge: {opt.message}",
+                               result=result)
+    return result

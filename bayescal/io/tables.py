@@ -1,0 +1,233 @@
+"""Reading numeric tables from CSV and NPZ files, with every error located.
+
+:func:`read_table` returns a :class:`Table` (float columns, the line of each
+row); every problem raises :class:`~bayescal.errors.InputError` naming the
+file, the line (or array index) and the column, and what was expected. The
+file formats are described in :mod:`bayescal.io.data`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io as _io
+import math
+import pathlib
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Table", "read_table", "LASER_COLUMNS", "SIGMA_COLUMNS"]
+
+LASER_COLUMNS = ("u", "v", "x", "y", "z")
+SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
+_KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane")
+_STACKED = {"pixels": ("u", "v"), "approx_points": ("x", "y", "z"), "points": ("x", "y", "z"),
+            "sigma_scene": SIGMA_COLUMNS}
+
+
+@dataclass
+class Table:
+    """Numeric columns read from one CSV or NPZ file.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    columns : dict of str to ndarray, shape (N,)
+        Float columns; ``nan`` marks an empty cell (only kept for sigma columns).
+    lines : ndarray of int, shape (N,)
+        Line of each row in the file (CSV, 1-based, header = 1) or row index (NPZ).
+    kind : {"csv", "npz"}
+    scalars : dict of str to float
+        Scalar NPZ entries (``sigma_px``).
+    """
+
+    path: pathlib.Path
+    columns: dict
+    lines: np.ndarray
+    kind: str
+    scalars: dict = field(default_factory=dict)
+
+    def __len__(self):
+        return len(self.lines)
+
+    def where(self, row, column):
+        """Human-readable location of ``row`` (0-based data row) in ``column``."""
+        if self.kind == "csv":
+            return f"{self.path}, line {int(self.lines[row])}, column '{column}'"
+        return f"{self.path}, array '{column}', index {int(self.lines[row])}"
+
+    def error(self, row, column, message):
+        """An :class:`InputError` located at ``row``/``column``."""
+        return InputError(f"{self.where(row, column)}: {message}", path=str(self.path),
+                          line=int(self.lines[row]), column=column)
+
+
+def _fmt(value):
+    return f"{value:.6g}" if isinstance(value, float) else repr(value)
+
+
+def _parse_cell(text, *, where, sigma):
+    """Parse one CSV cell; sigma columns accept empty/inf as 'no information'."""
+    s = text.strip()
+    if s == "":
+        if sigma:
+            return math.inf
+        raise InputError(f"{where}: empty cell; expected a number")
+    try:
+        value = float(s)
+    except ValueError:
+        raise InputError(f"{where}: could not read {s!r} as a number") from None
+    if math.isnan(value):
+        raise InputError(f"{where}: NaN is not allowed; expected a finite number"
+                         + (" (or empty/inf for 'no information')" if sigma else ""))
+    if math.isinf(value) and not sigma:
+        raise InputError(f"{where}: {s!r} is not allowed; expected a finite number")
+    if sigma and value <= 0:
+        raise InputError(f"{where}: {s!r} is not a valid standard deviation; expected a "
+                         "positive number in mm (or empty/inf for 'no information')")
+    return value
+
+
+def _read_csv(path, required, optional):
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a UTF-8 text file ({exc.reason}); expected a CSV file",
+                         path=str(path)) from None
+    rows = [(i + 1, r) for i, r in enumerate(csv.reader(_io.StringIO(text)))
+            if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise InputError(f"{path}: the file is empty; expected a header line naming the "
+                         f"columns {', '.join(required)} and one line per point", path=str(path))
+    header_line, header = rows[0]
+    names = [h.strip().lower() for h in header]
+    for j, n in enumerate(names):
+        if n in names[:j]:
+            raise InputError(f"{path}, line {header_line}: column '{n}' appears twice",
+                             path=str(path), line=header_line, column=n)
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise InputError(
+            f"{path}, line {header_line}: missing column(s) {', '.join(repr(m) for m in missing)}; "
+            f"the header has {', '.join(repr(n) for n in names)}, expected "
+            f"{', '.join(required)}" + (f" (optional: {', '.join(optional)})" if optional else ""),
+            path=str(path), line=header_line, column=missing[0])
+    ignored = [n for n in names if n not in required and n not in optional]
+    if ignored:
+        print(f"bayescal: warning: {path}: ignoring column(s) {', '.join(ignored)} "
+              f"(known columns: {', '.join(tuple(required) + tuple(optional))})", file=sys.stderr)
+    data = rows[1:]
+    if not data:
+        raise InputError(f"{path}: the header is there but no data lines follow",
+                         path=str(path), line=header_line)
+    wanted = [c for c in names if c in required or c in optional]
+    cols = {c: np.empty(len(data)) for c in wanted}
+    lines = np.empty(len(data), dtype=int)
+    for k, (lineno, cells) in enumerate(data):
+        if len(cells) != len(names):
+            raise InputError(f"{path}, line {lineno}: {len(cells)} fields, expected "
+                             f"{len(names)} (one per header column)", path=str(path), line=lineno)
+        lines[k] = lineno
+        for c in wanted:
+            j = names.index(c)
+            sigma = c.startswith("sigma_")
+            where = f"{path}, line {lineno}, column '{c}'"
+            try:
+                cols[c][k] = _parse_cell(cells[j], where=where, sigma=sigma)
+            except InputError as exc:
+                exc.path, exc.line, exc.column = str(path), lineno, c
+                raise
+    return Table(path, cols, lines, "csv")
+
+
+def _read_npz(path, required, optional):
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            raw = {k.lower(): np.asarray(z[k]) for k in z.files}
+    except Exception as exc:  # np.load raises many kinds for a corrupt file
+        raise InputError(f"{path}: could not read as an NPZ archive ({exc})",
+                         path=str(path)) from None
+    arrays, scalars = {}, {}
+    for name, a in raw.items():
+        if name in _STACKED:
+            sub = _STACKED[name]
+            if a.ndim != 2 or a.shape[1] != len(sub):
+                raise InputError(f"{path}, array '{name}': shape {a.shape}, expected "
+                                 f"(N, {len(sub)})", path=str(path), column=name)
+            for j, c in enumerate(sub):
+                arrays.setdefault(c, a[:, j])
+        elif a.ndim == 0:
+            scalars[name] = a
+        else:
+            arrays[name] = a
+    missing = [c for c in required if c not in arrays]
+    if missing:
+        raise InputError(f"{path}: missing array(s) {', '.join(repr(m) for m in missing)}; "
+                         f"found {', '.join(repr(k) for k in raw) or 'none'}, expected "
+                         f"{', '.join(required)} (or the stacked arrays pixels (N, 2), "
+                         "approx_points (N, 3))", path=str(path), column=missing[0])
+    wanted = [c for c in arrays if c in required or c in optional]
+    n = None
+    cols = {}
+    for c in wanted:
+        a = arrays[c]
+        if a.ndim != 1:
+            raise InputError(f"{path}, array '{c}': shape {a.shape}, expected (N,)",
+                             path=str(path), column=c)
+        if n is None:
+            n, first = len(a), c
+        elif len(a) != n:
+            raise InputError(f"{path}, array '{c}': {len(a)} entries but '{first}' has {n}; "
+                             "expected the same length", path=str(path), column=c)
+        try:
+            cols[c] = a.astype(float)
+        except (TypeError, ValueError):
+            raise InputError(f"{path}, array '{c}': dtype {a.dtype} is not numeric; expected "
+                             "numbers", path=str(path), column=c) from None
+    if not n:
+        raise InputError(f"{path}: the arrays are empty; expected one entry per point",
+                         path=str(path))
+    table = Table(path, cols, np.arange(n), "npz",
+                  {k: v for k, v in scalars.items() if k in optional or k in required})
+    for c, a in cols.items():
+        sigma = c.startswith("sigma_")
+        bad = np.isnan(a) | (np.isinf(a) if not sigma else (a <= 0))
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            what = ("a positive number in mm (or inf for 'no information')" if sigma
+                    else "a finite number")
+            raise table.error(k, c, f"{_fmt(float(a[k]))} is not allowed; expected {what}")
+    return table
+
+
+def read_table(path, *, required, optional=()):
+    """Read numeric columns from a CSV or NPZ file, checking every cell.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        ``.npz`` files are read as NPZ, anything else as CSV.
+    required : sequence of str
+        Columns that must be present (lower-case names).
+    optional : sequence of str
+        Columns read when present; others are ignored (with a warning for CSV).
+
+    Returns
+    -------
+    Table
+
+    Raises
+    ------
+    InputError
+        Missing file or column, empty file, a cell that is not a number, NaN,
+        infinity outside the sigma columns, rows of the wrong length.
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file", path=str(path))
+    if path.suffix.lower() == ".npz":
+        return _read_npz(path, tuple(required), tuple(optional))
+    return _read_csv(path, tuple(required), tuple(optional))

@@ -1,0 +1,125 @@
+"""The per-point algebra of the collapsed laser likelihood: the hot path's terms
+(:func:`point_terms`) and the analytic gradient (envelope theorem, :func:`grad_terms`).
+
+Kept apart from :mod:`bayescal.likelihood.points` for size; used by
+:meth:`bayescal.likelihood.points.LaserLikelihood.laplace` and
+:meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["grad_terms", "point_terms"]
+
+
+def point_terms(lik, theta, x, y, sig, w):
+    """Hot path of :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`: residuals and
+    q-normal equations, elementwise.
+
+    Same quantities as :meth:`~bayescal.likelihood.points.LaserLikelihood.residuals` (tested
+    against it), written out for 2x2 blocks so that walkers x points cost a few
+    dozen array ops.
+    Returns ``(rr, Cp, Cs, g0, g1)``: ``rr = |R|^2``, the pixel and scene
+    parts of ``J_q^T J_q`` as ``(C00, C01, C11)`` triples, and the gradient.
+    """
+    xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
+    T = np.tan(beta)
+    rho = np.sqrt(x * x + y * y)
+    gx, gy = x / (rho * T), y / (rho * T)
+    z = rho / T - h
+    r = np.sqrt(rho * rho + z * z)
+    D = xi * r - z
+    iD = np.where(D > 0, 1.0 / D, np.nan)
+    mx, my = x * iD, y * iD
+    inv_s = 1.0 / sig[..., None]
+    ru = (gu * mx + u0 - lik.pixels[:, 0]) * inv_s
+    rv = (gv * my + v0 - lik.pixels[:, 1]) * inv_s
+    xr = xi / r
+    dDx = xr * (x + z * gx) - gx
+    dDy = xr * (y + z * gy) - gy
+    a, b = gu * iD * inv_s, gv * iD * inv_s
+    ux, uy = a * (1.0 - mx * dDx), -a * mx * dDy
+    vx, vy = -b * my * dDx, b * (1.0 - my * dDy)
+    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
+    rx, ry, rz = (x - lik.approx[:, 0]) * wx, (y - lik.approx[:, 1]) * wy, \
+        (z - lik.approx[:, 2]) * wz
+    wz2 = wz * wz
+    Cp = (ux * ux + vx * vx, ux * uy + vx * vy, uy * uy + vy * vy)
+    Cs = (wx * wx + wz2 * gx * gx, wz2 * gx * gy, wy * wy + wz2 * gy * gy)
+    g0 = ux * ru + vx * rv + wx * rx + wz * gx * rz
+    g1 = uy * ru + vy * rv + wy * ry + wz * gy * rz
+    rr = ru * ru + rv * rv + rx * rx + ry * ry + rz * rz
+    return rr, Cp, Cs, g0, g1
+
+
+def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
+    """Gradient of ``sum_i log marginal_i`` of a :class:`~.points.LaserLikelihood`.
+
+    Parameters
+    ----------
+    lik : LaserLikelihood
+    theta : ndarray, shape (..., 7)
+    x, y : ndarray, shape (..., N)
+        The conditional modes' scene coordinates, mm.
+    sig : ndarray, shape (...)
+        Pixel noise, px.
+    w : ndarray, shape (..., N, 3)
+        Inverse scene standard deviations, 1/mm.
+    outlier_resp : ndarray, shape (..., N), optional
+        With the outlier mixture: each point's outlier probability ``r_i``; its
+        residual terms are weighted by ``(1 - r_i) + r_i / c^2`` (the outlier
+        component has ``c`` times the noise) and ``logit w`` gets ``sum_i (r_i - w)``.
+    logit_w : ndarray, shape (...), optional
+        The sampled ``logit w`` (with ``outlier_resp``).
+
+    Returns
+    -------
+    ndarray, shape (..., 7 + n_noise)
+        theta's part ``-sum_i J_theta_i^T R_i`` written out elementwise, then the
+        inferred noise levels' (see :meth:`LaserLikelihood.grad_log_marginal`),
+        then ``logit w``'s with the mixture.
+    """
+    if outlier_resp is None:
+        wt = 1.0
+    else:
+        wt = (1.0 - outlier_resp) + outlier_resp / lik.outlier_scale**2
+    xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
+    sb = np.sin(beta)
+    T = sb / np.cos(beta)
+    rho = np.sqrt(x * x + y * y)
+    z = rho / T - h
+    r = np.sqrt(rho * rho + z * z)
+    D = xi * r - z
+    mx, my = x / D, y / D
+    inv_s = 1.0 / sig[..., None]
+    ru = (gu * mx + u0 - lik.pixels[:, 0]) * inv_s
+    rv = (gv * my + v0 - lik.pixels[:, 1]) * inv_s
+    wz = w[..., 2]
+    rzw = wt * (z - lik.approx[:, 2]) * wz * wz           # r_z * d r_z / d z
+    ru_w, rv_w = wt * ru, wt * rv
+    A = wt * (ru * gu * mx + rv * gv * my) * inv_s / D     # -(d r_px / d D) . r_px
+    dz_db = -rho / (sb * sb)
+    zr = xi * z / r
+    out = [np.sum(A * r, -1), -np.sum(ru_w * mx * inv_s, -1), -np.sum(rv_w * my * inv_s, -1),
+           -np.sum(ru_w * inv_s, -1), -np.sum(rv_w * inv_s, -1),
+           np.sum(A * (1.0 - zr) + rzw, -1),
+           np.sum(A * (zr - 1.0) * dz_db - rzw * dz_db, -1)]
+    if lik.n_noise:
+        _, Cp, Cs, _, _ = point_terms(lik, theta, x, y, sig, w)
+        C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
+        det = C00 * C11 - C01 * C01
+
+        def tr_cinv(B):                                     # tr(C^-1 B) per point
+            return (C11 * B[0] - 2 * C01 * B[1] + C00 * B[2]) / det
+        if lik.infer_px:
+            out.append(np.sum(wt * (ru * ru + rv * rv) - 2.0 + tr_cinv(Cp), -1))
+        if lik.infer_scene:
+            rr_s = ((x - lik.approx[:, 0]) * w[..., 0]) ** 2 \
+                + ((y - lik.approx[:, 1]) * w[..., 1]) ** 2 \
+                + ((z - lik.approx[:, 2]) * wz) ** 2
+            out.append(np.sum(wt * rr_s - 3.0 + tr_cinv(Cs), -1))
+    if outlier_resp is not None:
+        w_frac = 1.0 / (1.0 + np.exp(-np.asarray(logit_w, dtype=float)))
+        out.append(np.sum(outlier_resp - w_frac[..., None], -1))
+    return np.stack(out, -1)

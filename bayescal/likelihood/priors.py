@@ -1,0 +1,273 @@
+"""Priors on the eight sensor parameters, and the same prior in identifiable coordinates.
+
+A prior is one :mod:`scipy.stats` frozen distribution per paper parameter
+(``xi, phi, alpha_u, alpha_v, u0, v0, h, beta``), independent. The defaults are
+the design value plus or minus a tolerance (:func:`default_prior`); any of them
+is overridden by name.
+
+The data see only ``theta = (xi, gamma_u, gamma_v, u0, v0, h, beta)``: scaling
+``alpha_u``, ``alpha_v`` by ``k`` with ``phi' = (xi + phi) / k - xi`` changes no
+pixel (fact 1, ``docs/model.md``, "Measured facts"). The sampler therefore
+works with the prior of ``theta`` with ``phi`` integrated out::
+
+    p(theta) = p_xi p_u0 p_v0 p_h p_beta
+               * int p_phi(phi) p_au(gu / s) p_av(gv / s) / s^2 dphi,   s = xi + phi
+
+(``1/s^2`` is the Jacobian of ``(gu, gv) -> (alpha_u, alpha_v)``), computed by
+quadrature over the quantiles of ``p_phi``; ``phi`` is then drawn from its
+exact conditional given each ``theta`` sample.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+from scipy.special import logsumexp
+
+from .._validation import resolve_rng
+from ..sensor.parameters import PARAM_NAMES, SensorParams
+
+__all__ = ["default_prior", "Prior"]
+
+#: default tolerances (one standard deviation) around the design values
+DEFAULT_TOLERANCES = {
+    "xi": 0.05,          # parabolic mirror by design
+    "phi": 0.1,
+    "alpha_u": 0.1,      # relative: 10 % of the design focal scale
+    "alpha_v": 0.1,
+    "u0": 10.0,          # px
+    "v0": 10.0,          # px
+    "h": 0.1,            # relative: 10 % of the design baseline
+    "beta": 0.05,        # rad (about 3 degrees)
+}
+_RELATIVE = ("alpha_u", "alpha_v", "h")
+
+
+def default_prior(nominal=None):
+    """Default priors: independent normals, design value +- tolerance.
+
+    ============  ==========================  =====================
+    parameter     default (paper design)      standard deviation
+    ============  ==========================  =====================
+    xi            1                           0.05
+    phi           0                           0.1
+    alpha_u       55 px                       10 % (5.5 px)
+    alpha_v       -55 px                      10 % (5.5 px)
+    u0, v0        400, 300 px                 10 px
+    h             200 mm                      10 % (20 mm)
+    beta          pi/3 rad                    0.05 rad
+    ============  ==========================  =====================
+
+    Parameters
+    ----------
+    nominal : SensorParams, optional
+        Design values (default :meth:`SensorParams.paper`).
+
+    Returns
+    -------
+    dict
+        ``{name: scipy.stats frozen distribution}`` for the eight names.
+    """
+    nominal = SensorParams.paper() if nominal is None else nominal
+    out = {}
+    for name, value in nominal.as_dict().items():
+        tol = DEFAULT_TOLERANCES[name]
+        sd = tol * abs(value) if name in _RELATIVE else tol
+        out[name] = stats.norm(loc=value, scale=sd)
+    return out
+
+
+def _check_dist(name, dist):
+    if isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
+        raise TypeError(f"prior[{name!r}] must be a frozen scipy.stats distribution, got the "
+                        f"unfrozen {dist.name!r}: give its parameters, e.g. "
+                        f"scipy.stats.{dist.name}(loc=..., scale=...)")
+    if not (hasattr(dist, "logpdf") and hasattr(dist, "ppf") and hasattr(dist, "rvs")):
+        raise TypeError(f"prior[{name!r}] must be a scipy.stats frozen continuous distribution "
+                        f"(with logpdf, ppf, rvs), got {type(dist).__name__}")
+    return dist
+
+
+class Prior:
+    """Independent priors on the eight parameters, usable in identifiable coordinates.
+
+    Parameters
+    ----------
+    prior : dict, optional
+        ``{name: frozen distribution}`` overriding any of the defaults.
+    nominal : SensorParams, optional
+        Design values for the defaults.
+    n_phi : int, optional
+        Quadrature nodes over ``phi`` (default 64).
+
+    Attributes
+    ----------
+    dists : dict
+        The eight frozen distributions, keyed by :data:`~bayescal.PARAM_NAMES`.
+    """
+
+    def __init__(self, prior=None, *, nominal=None, n_phi=64):
+        dists = default_prior(nominal)
+        if prior is not None:
+            if isinstance(prior, Prior):
+                prior = prior.dists
+            if not isinstance(prior, dict):
+                raise TypeError(f"prior must be a dict {{name: scipy.stats frozen distribution}}, "
+                                f"got {type(prior).__name__}")
+            unknown = set(prior) - set(PARAM_NAMES)
+            if unknown:
+                raise ValueError(f"prior has unknown parameter name(s) {sorted(unknown)}; "
+                                 f"expected any of {PARAM_NAMES}")
+            for k, v in prior.items():
+                dists[k] = _check_dist(k, v)
+        self.dists = dists
+        # normal priors are evaluated in closed form (scipy's per-call overhead dominated
+        # the sampler's prior cost)
+        self._normal = {n: (float(d.mean()), float(d.std())) for n, d in dists.items()
+                        if getattr(getattr(d, "dist", None), "name", "") == "norm"}
+        # quadrature over phi: equal-probability nodes (midpoint rule in quantile space)
+        u = (np.arange(n_phi) + 0.5) / n_phi
+        self._phi_nodes = np.asarray(dists["phi"].ppf(u), dtype=float)
+        self._log_w = np.full(n_phi, -np.log(n_phi))
+
+    def _logpdf(self, name, x):
+        """Log density of parameter ``name`` at ``x`` (closed form for normals)."""
+        if name in self._normal:
+            mu, sd = self._normal[name]
+            z = (x - mu) / sd
+            return -0.5 * z * z - np.log(sd) - 0.5 * np.log(2 * np.pi)
+        return self.dists[name].logpdf(x)
+
+    # -- paper parameters -------------------------------------------------
+    def logpdf(self, a):
+        """Log prior density of paper parameters ``a``, shape (..., 8) -> (...)."""
+        a = np.asarray(a, dtype=float)
+        out = np.zeros(a.shape[:-1])
+        for k, name in enumerate(PARAM_NAMES):
+            out = out + self._logpdf(name, a[..., k])
+        return out
+
+    def mean(self):
+        """Prior means as a :class:`SensorParams`."""
+        return SensorParams(**{n: float(d.mean()) for n, d in self.dists.items()})
+
+    def std(self):
+        """Prior standard deviations, shape (8,), order PARAM_NAMES."""
+        return np.array([float(self.dists[n].std()) for n in PARAM_NAMES])
+
+    def sample(self, size=None, *, rng=None):
+        """Draw paper parameters from the prior, shape ``size + (8,)``.
+
+        Draws with ``xi + phi <= 0``, ``h <= 0`` or ``beta`` outside (0, pi/2)
+        are redrawn (the prior is truncated to the physical domain).
+        """
+        rng = resolve_rng(rng)
+        shape = () if size is None else tuple(np.atleast_1d(size))
+        n = int(np.prod(shape)) if shape else 1
+        out = np.empty((n, 8))
+        todo = np.arange(n)
+        for _ in range(1000):
+            for k, name in enumerate(PARAM_NAMES):
+                out[todo, k] = self.dists[name].rvs(size=len(todo), random_state=rng)
+            ok = _physical(out[todo])
+            todo = todo[~ok]
+            if todo.size == 0:
+                break
+        else:
+            raise RuntimeError("prior puts almost no mass on physical parameters")
+        return out.reshape(shape + (8,))
+
+    # -- identifiable coordinates ------------------------------------------
+    def _alpha_terms(self, theta, phi):
+        """``log p_au(gu/s) + log p_av(gv/s) - 2 log s`` at nodes ``phi``, shape (..., K)."""
+        xi = theta[..., 0:1]
+        s = xi + phi
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lp = (self._logpdf("alpha_u", theta[..., 1:2] / s)
+                  + self._logpdf("alpha_v", theta[..., 2:3] / s) - 2.0 * np.log(s))
+        return np.where(s > 0, lp, -np.inf)
+
+    def logpdf_theta(self, theta):
+        """Log prior of the identifiable coordinates with ``phi`` integrated out.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (..., 7)
+
+        Returns
+        -------
+        ndarray, shape (...)
+        """
+        theta = np.asarray(theta, dtype=float)
+        out = (self._logpdf("xi", theta[..., 0]) + self._logpdf("u0", theta[..., 3])
+               + self._logpdf("v0", theta[..., 4]) + self._logpdf("h", theta[..., 5])
+               + self._logpdf("beta", theta[..., 6]))
+        # E_phi[p_au p_av / s^2] over equal-probability nodes of p_phi
+        out = out + logsumexp(self._alpha_terms(theta, self._phi_nodes) + self._log_w, axis=-1)
+        ok = (theta[..., 5] > 0) & (theta[..., 6] > 0) & (theta[..., 6] < np.pi / 2)
+        return np.where(ok & np.isfinite(out), out, -np.inf)
+
+    def sample_phi(self, theta, *, rng=None):
+        """Draw ``phi`` from its conditional given ``theta`` (shape (S, 7) -> (S,)).
+
+        Exact up to the quadrature grid: a node is chosen with its conditional
+        weight, then ``phi`` is drawn uniformly in probability space within the
+        node's quantile cell (piecewise-constant density ratio).
+        """
+        rng = resolve_rng(rng)
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        phi = self._phi_nodes
+        lp = self._alpha_terms(theta, phi)
+        lp = lp - lp.max(axis=-1, keepdims=True)
+        w = np.exp(lp)
+        w /= w.sum(axis=-1, keepdims=True)
+        cdf = np.cumsum(w, axis=-1)
+        k = (rng.random((len(theta), 1)) > cdf).sum(axis=-1)
+        k = np.minimum(k, len(phi) - 1)
+        n = len(phi)
+        u = (k + rng.random(len(theta))) / n
+        return np.asarray(self.dists["phi"].ppf(u), dtype=float)
+
+    # -- least-squares form ------------------------------------------------
+    def residuals(self, a, *, jacobian=False):
+        """Prior as whitened residuals on paper parameters (for least squares).
+
+        Normal priors give ``(a - mu) / sd`` exactly; any other distribution
+        gives ``sign(a - m) sqrt(2 (log p(m) - log p(a)))`` with ``m`` its
+        median, an approximation good near the mode.
+
+        Parameters
+        ----------
+        a : ndarray, shape (8,)
+
+        Returns
+        -------
+        r : ndarray, shape (8,)
+        J : ndarray, shape (8, 8), diagonal (only with ``jacobian=True``)
+        """
+        a = np.asarray(a, dtype=float)
+        r = np.empty(8)
+        d = np.empty(8)
+        for k, name in enumerate(PARAM_NAMES):
+            dist = self.dists[name]
+            if getattr(dist.dist, "name", "") == "norm":
+                mu, sd = dist.mean(), dist.std()
+                r[k] = (a[k] - mu) / sd
+                d[k] = 1.0 / sd
+            else:
+                m = float(dist.median())
+                diff = max(float(dist.logpdf(m) - dist.logpdf(a[k])), 0.0)
+                r[k] = np.sign(a[k] - m) * np.sqrt(2 * diff)
+                eps = 1e-6 * max(abs(a[k]), float(dist.std()), 1e-12)
+                dlp = (dist.logpdf(a[k] + eps) - dist.logpdf(a[k] - eps)) / (2 * eps)
+                d[k] = -dlp / r[k] if abs(r[k]) > 1e-8 else 1.0 / float(dist.std())
+        if not jacobian:
+            return r
+        return r, np.diag(d)
+
+
+def _physical(a):
+    return ((a[..., 0] + a[..., 1] > 0) & (a[..., 0] >= 0) & (a[..., 6] > 0)
+            & (a[..., 7] > 0) & (a[..., 7] < np.pi / 2)
+            & (a[..., 2] != 0) & (a[..., 3] != 0))
+

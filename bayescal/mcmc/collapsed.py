@@ -1,0 +1,261 @@
+"""The collapsed sampler's core: emcee over the globals with every point integrated out.
+
+:func:`sample_collapsed` samples ``psi = (theta, extras)`` of any likelihood that
+provides ``n``, ``extra_names``, ``log_prior_extra``, ``laplace``,
+``point_log_density`` and ``points_3d`` (optionally ``grad_log_marginal``, which
+turns on the HMC move), from a MAP start and its Laplace covariance; the steps
+are in :mod:`bayescal.mcmc.steps`, the walkthrough in ``docs/bayes.md``
+section 3. Callers: :func:`bayescal.mcmc.sampling.sample_posterior` (approximate
+points) and :func:`bayescal.mcmc.floorplan.sample_plan_posterior` (floor plan).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .._validation import resolve_rng
+from ..errors import NoiseAtBoundWarning, NotConvergedError, NotConvergedWarning
+from ..likelihood.points import draw_points
+from ..stats.chains import ChainDiagnostics
+from .moves import HMCMove, IndependenceMove
+from .steps import (
+    HMC_LEAPFROG,
+    CollapsedTarget,
+    Coordinates,
+    de_move,
+    default_walkers,
+    imh_df,
+    min_walkers,
+    run_until_converged,
+    seeded_sampler,
+    tune_proposal,
+)
+
+__all__ = ["sample_collapsed", "check_run_options", "check_walkers", "report_unconverged",
+           "default_moves", "NotConvergedWarning", "NotConvergedError", "NoiseAtBoundWarning",
+           "posterior_outlier_prob"]
+
+#: shares of the HMC and independence moves in the production run (the rest: DEMove)
+HMC_WEIGHT = 0.3
+IMH_WEIGHT = 0.6
+#: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
+HMC_PATH = 1.5
+
+
+
+def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
+                  n_leapfrog=None):
+    """emcee moves used by default.
+
+    With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
+    collapsed target's): :class:`~bayescal.mcmc.moves.HMCMove` (``HMC_WEIGHT``, mass
+    matrix ``cov^-1``, leapfrog step ``step_size`` in whitened units),
+    :class:`~bayescal.mcmc.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
+    between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
+    (the rest). Without a gradient: the independence proposal (80 %) and DEMove
+    (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
+    ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
+    distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
+    """
+    import emcee
+
+    if mean is None:
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+    if value_and_grad is None:
+        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
+                (de_move(), 0.2)]
+    n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
+    moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
+              HMC_WEIGHT),
+             (IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), IMH_WEIGHT),
+             (de_move(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
+    return [(m, w) for m, w in moves if w > 0]
+
+
+def _moves_text(moves):
+    if moves is None:
+        return "default"
+    return ", ".join(f"{type(m).__name__} {w:.0%}" for m, w in moves)
+
+
+def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
+    """Walker placement and proposal tuning (steps 2-3), in sampling coordinates."""
+    p0 = rng.multivariate_normal(s_map, cov_s, size=n_walkers)
+    lp0 = target(p0)
+    for _ in range(100):
+        bad = ~np.isfinite(lp0)
+        if not bad.any():
+            break
+        p0[bad] = rng.multivariate_normal(s_map, cov_s * 0.01, size=int(bad.sum()))
+        lp0[bad] = target(p0[bad])
+    else:
+        raise RuntimeError("could not place the walkers: the MAP start is outside the support")
+    if n_tune <= 0:
+        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3}
+    return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
+                         gradient=target.has_gradient)
+
+
+def _thin(chain, burn, n_samples):
+    """``n_samples`` states thinned evenly from the kept chain (steps, walkers, d)."""
+    flat = chain[burn:].reshape(-1, chain.shape[-1])
+    if len(flat) == 0:
+        flat = chain[-1]
+    idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
+    return flat[idx]
+
+
+def _count(value, name, minimum):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def check_run_options(*, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
+                      n_samples=2000, n_point_mh=2, n_iter=1, n_tune=None,
+                      on_unconverged="warn"):
+    """Validate the sampler's run options before any work; ValueError naming the option.
+
+    Shared by :func:`bayescal.sample_posterior` (points or floor plan) and
+    :func:`sample_collapsed`, so a typo fails at once, not after the MAP.
+    """
+    _count(max_steps, "max_steps", 1)
+    _count(n_samples, "n_samples", 1)
+    _count(n_point_mh, "n_point_mh", 0)
+    _count(n_iter, "n_iter", 1)
+    if n_walkers is not None:
+        _count(n_walkers, "n_walkers", 2)
+    if n_tune is not None:
+        _count(n_tune, "n_tune", 0)
+    for name, v in (("min_ess", min_ess), ("tau_factor", tau_factor)):
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(v) or v <= 0:
+            raise ValueError(f"{name} must be a finite positive number, got {v!r}")
+    if on_unconverged not in ("warn", "raise"):
+        raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
+
+
+def check_walkers(n_walkers, ndim):
+    """Raise ``ValueError`` unless ``n_walkers`` is None or at least ``ndim + 2``."""
+    if n_walkers is not None and int(n_walkers) < min_walkers(ndim):
+        raise ValueError(f"n_walkers must be at least ndim + 2 = {min_walkers(ndim)} (the "
+                         f"walkers must span the {ndim} sampled coordinates), got {n_walkers}")
+
+
+def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stacklevel):
+    """Warn (or raise :class:`NotConvergedError`) when the chain missed its rule.
+
+    ``what`` names the chain in the message ("the chain", "the floor-plan chain");
+    the numbers come from ``diag``, the :class:`~bayescal.stats.chains.ChainDiagnostics`.
+    """
+    if diag.converged:
+        return
+    msg = (f"{what} did not converge within max_steps={max_steps}: it has "
+           f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
+           f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
+           f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
+    if on_unconverged == "raise":
+        raise NotConvergedError(msg, tau=diag.tau, posterior=posterior)
+    warnings.warn(msg, NotConvergedWarning, stacklevel=stacklevel + 1)
+
+
+def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
+                     min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
+                     moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None):
+    """Sample the globals ``psi`` with the points integrated out, then draw the points.
+
+    Parameters
+    ----------
+    lik : likelihood
+        Any object of the collapsed-sampler protocol (``n``, ``extra_names``,
+        ``log_prior_extra``, ``laplace``, ``point_log_density``, ``points_3d``).
+    prior : Prior
+        Prior of the paper parameters (theta's prior with phi integrated out).
+    psi_map : array_like, shape (d,)
+        Start: theta (7,) then the extra globals, as ``lik.laplace`` takes them.
+    cov_psi_map : array_like, shape (d, d)
+        Laplace covariance at ``psi_map`` (a rough one will do: it is refitted).
+    q_map : array_like, shape (N, k)
+        Latent point coordinates at the MAP (start of the Laplace steps).
+    rng, n_walkers, min_ess, tau_factor, max_steps, n_samples, moves, progress,
+    n_point_mh, n_iter :
+        As in :func:`sample_posterior`.
+    n_tune : int, optional
+        Steps per tuning round (default 60 with a gradient, else 150).
+
+    Returns
+    -------
+    dict
+        ``psi`` (S, d) samples, ``q`` (S, N, k) point draws, ``diagnostics``
+        (:class:`~bayescal.stats.chains.ChainDiagnostics`), ``imh_acceptance``.
+    """
+    check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
+                      max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
+                      n_iter=n_iter, n_tune=n_tune)
+    rng = resolve_rng(rng)
+    ndim = len(psi_map)
+    if n_walkers is None:       # a user's own moves may be red-blue: emcee's 2 ndim + 2
+        n_walkers = default_walkers(ndim) if moves is None else 2 * ndim + 2
+    n_walkers = int(n_walkers)
+    # the ring radius at the points' median range (docs/bayes.md section 3)
+    names = tuple(lik.extra_names)
+    coords = Coordinates(getattr(lik, "reference_range", None),
+                         7 + names.index("outlier_frac") if "outlier_frac" in names else None)
+    target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
+    if n_tune is None:
+        # HMC mixes fast: short tuning rounds suffice (tune_proposal pools the last two
+        # rounds' draws for the proposal's covariance, docs/bayes.md section 3)
+        n_tune = 60 if target.has_gradient and moves is None else 150
+    n_tune = int(n_tune)
+    J = coords.jacobian(psi_map)
+    s_map, cov_s = coords.to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
+    fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
+    p0 = fit["state"]
+    vg = target.value_and_grad if target.has_gradient else None
+    # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
+    n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
+    prod_moves = default_moves(fit["mean"], fit["cov"], value_and_grad=vg,
+                               step_size=fit["step_size"], n_leapfrog=n_leap) \
+        if moves is None else moves
+    sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
+    info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
+                               max_steps=int(max_steps), chunk=100, progress=progress,
+                               coords=coords)
+    diag = ChainDiagnostics(
+        names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
+        tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
+        n_walkers=n_walkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
+        converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
+        moves=_moves_text(prod_moves),
+        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
+               "hmc_step_size": fit["step_size"]})
+    psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
+    # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
+                             batch=max(1, 500_000 // max(lik.n, 1)))
+    return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
+
+
+def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
+    """Posterior probability (N,) that each row is an outlier: the mean over draws of its
+    conditional probability given the globals (None without the mixture).
+
+    Shared by both posteriors (approximate points and floor plan); ``lik`` provides
+    ``outlier_prob(psi, q)``, ``psi`` (S, d) and ``q`` (S, N, k) are the draws. At most
+    ``max_draws`` evenly spaced draws are used: a mean of probabilities in [0, 1] over 500
+    draws has a Monte-Carlo error below 0.5 / sqrt(500) = 0.02 even for independent draws,
+    and each draw costs a likelihood evaluation. ``batch`` draws go in one vectorized call
+    (default ~5e5 (draw, point) pairs: bounds the temporaries' memory at large N).
+    """
+    if not getattr(lik, "outliers", False):
+        return None
+    batch = max(1, 500_000 // max(lik.n, 1)) if batch is None else int(batch)
+    every = max(1, -(-len(psi) // max_draws))
+    psi, q = psi[::every], q[::every]
+    total = np.zeros(lik.n)
+    for lo in range(0, len(psi), batch):
+        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
+        total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
+    return total / len(psi)

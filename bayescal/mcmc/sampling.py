@@ -1,0 +1,274 @@
+"""Posterior sampling: a collapsed emcee sampler over the identifiable parameters.
+
+The joint posterior over the 8 parameters and the N laser points has ``7 + k N``
+free dimensions (``phi`` is not seen by the data); emcee does not mix there
+(``docs/bayes.md`` section 3). The points are independent given the globals
+``psi = (theta, extras)``, so :func:`sample_collapsed` samples ``psi`` with every
+point integrated out by a Laplace step, then draws the points. Its steps
+(:mod:`bayescal.mcmc.steps`):
+
+1. **MAP start** (:func:`sample_posterior` only): :func:`bayescal.calibrate_simultaneous`
+   gives ``psi_map``, its Laplace covariance and the points ``q_map``;
+2. **proposal fit**: adaptive importance sampling fits a Student-t to the collapsed
+   posterior (sampling coordinates, :func:`~bayescal.mcmc.steps.to_sampling`);
+3. **walker placement**: the walkers start from the fit's weighted draws;
+4. **production run**: emcee with the fitted independence proposal (80 %) and
+   differential evolution (20 %), in chunks until the kept chain is longer than
+   ``tau_factor`` autocorrelation times and the honest ESS (ensemble-mean based,
+   :func:`bayescal.stats.chains.ensemble_ess`) reaches ``min_ess``;
+5. **draws**: ``phi`` from its exact conditional, each point from its Laplace
+   Gaussian corrected by independence Metropolis-Hastings
+   (:func:`bayescal.likelihood.points.draw_points`);
+6. **assembly**: a :class:`~bayescal.results.posterior.Posterior` carrying a
+   :class:`~bayescal.stats.chains.ChainDiagnostics`.
+
+Any likelihood providing ``n``, ``extra_names``, ``log_prior_extra``, ``laplace``,
+``point_log_density`` and ``points_3d`` can be sampled by :func:`sample_collapsed`.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .._validation import resolve_rng
+from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
+from ..likelihood.priors import Prior
+from ..results.posterior import Posterior
+from ..scene.floorplan import FloorPlan
+from ..sensor.parameters import from_identifiable
+from ..stats.chains import integrated_time
+from .collapsed import (
+    NoiseAtBoundWarning,
+    NotConvergedError,
+    NotConvergedWarning,
+    check_run_options,
+    check_walkers,
+    default_moves,
+    report_unconverged,
+    sample_collapsed,
+)
+from .collapsed import posterior_outlier_prob as _outlier_prob
+from .floorplan import SCENE_REQUIRED, sample_plan_posterior
+from .steps import from_sampling, ring_scale, seeded_sampler, to_sampling
+
+__all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
+           "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
+           "ring_scale", "to_sampling", "from_sampling"]
+
+def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
+                     rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
+                     n_samples=2000, init=None, moves=None, progress=True,
+                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
+                     outliers=True):
+    """Sample the posterior over the 8 sensor parameters and every laser point.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        Laser pixels, px.
+    approx_points : array_like, shape (N, 3)
+        Approximate 3D laser points in frame C, mm.
+    sigma_px : float or None
+        Pixel noise, px; ``None`` infers it (log-uniform prior on
+        ``NOISE_BOUNDS["sigma_px"]``).
+    sigma_scene : float, array_like broadcastable to (N, 3), or None
+        Error of the approximate points, mm (``inf`` = axis not informative;
+        relative errors as e.g. ``0.05 * abs(approx_points)``); ``None`` infers
+        ``kappa`` in ``sigma_scene_i = kappa * rho_i`` (log-uniform prior on
+        ``NOISE_BOUNDS["kappa"]``).
+    prior : dict, optional
+        ``{name: scipy.stats frozen distribution}`` for any of the 8 names;
+        the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
+    rng : numpy.random.Generator, int or None
+        Randomness of walkers, emcee and point draws: same seed, same chains.
+    n_walkers : int, optional
+        emcee walkers, at least ``ndim + 2`` (default
+        :func:`~bayescal.mcmc.steps.default_walkers`: ``2 ndim + 2`` up to 24;
+        the ``tau_factor`` rule fixes the chain length in steps whatever the
+        ensemble size, so few walkers are cheapest; ``2 ndim + 2`` with your own
+        ``moves``, which may be red-blue moves).
+    min_ess : float, optional
+        Target effective sample size of every sampled coordinate, computed
+        honestly for an ensemble (:func:`bayescal.stats.chains.ensemble_ess`).
+    tau_factor : float, optional
+        Convergence rule: post-burn-in chain longer than ``tau_factor * tau``.
+    max_steps : int, optional
+        Hard limit on chain length.
+    n_samples : int, optional
+        Number of joint samples (parameters and points) kept, thinned evenly
+        from the converged chain.
+    init : SensorParams, optional
+        Start of the MAP search (default the prior means).
+    moves : list, optional
+        emcee moves of the production run (default :func:`default_moves`: the
+        fitted independence proposal mixed with differential evolution).
+    n_tune : int, optional
+        Steps per round of the proposal and step-size tuning (3 rounds, discarded;
+        default 60, or 150 for a likelihood without a gradient).
+    progress : bool, optional
+        Show a progress bar.
+    on_unconverged : {"warn", "raise"}
+        What to do when ``max_steps`` is reached before convergence.
+    n_point_mh : int, optional
+        Independence Metropolis-Hastings corrections per point draw.
+    n_iter : int, optional
+        Gauss-Newton iterations of the per-point Laplace step.
+    outliers : bool, optional
+        Per-point outlier mixture (``docs/robustness.md``): each row is an
+        inlier or, with probability ``w`` (Beta(1, 19) prior, sampled), an
+        outlier with 100x the noise; ``post.outlier_prob`` (N,) gives each
+        row's posterior probability of being one. On clean data it moves the
+        posterior by a few hundredths of a sd (``tests/mcmc/test_sampling.py``).
+        ``False``: the pure model. The same with a :class:`~bayescal.FloorPlan`.
+
+    Returns
+    -------
+    Posterior
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.5,
+    ...                       approx_error=0.02, approx_model="gaussian", rng=0)
+    >>> post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.5,
+    ...                            sigma_scene=ds.sigma_scene, rng=1, progress=False)
+    >>> post.param_samples.shape[1], post.point_samples.shape[1:]
+    (8, (60, 3))
+    """
+    check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
+                      max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
+                      n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
+    if isinstance(approx_points, FloorPlan):          # walls in place of points
+        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
+        return sample_plan_posterior(pixels, approx_points, **kw)
+    if sigma_scene is SCENE_REQUIRED:
+        raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
+                        "(needed with approximate points)")
+    from ..fit.simultaneous import calibrate_simultaneous
+
+    rng = resolve_rng(rng)
+    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
+                          outliers=outliers)
+    ndim = 7 + len(lik.extra_names)
+    check_walkers(n_walkers, ndim)
+    map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
+                                     sigma_scene=sigma_scene, prior=prior, init=init,
+                                     outliers=outliers)
+    psi_map, cov_map, q_map = _map_start(lik, map_res)
+    # the sampler's ring radius is taken at the points' median range (docs/bayes.md sec. 3)
+    lik.reference_range = float(np.median(np.hypot(map_res.points[:, 0], map_res.points[:, 1])))
+    run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
+                           min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
+                           n_samples=n_samples, moves=moves, progress=progress,
+                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
+    post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    _check_noise_bounds(post)
+    report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
+                       on_unconverged=on_unconverged, stacklevel=2)
+    return post
+
+
+def _map_start(lik, map_res):
+    """psi at the MAP (theta then inferred log noise), its covariance and the MAP points."""
+    sol, noise = map_res.extras["map"], map_res.extras["noise"]
+    lik.set_reference_noise(sigma_px=noise["sigma_px"], kappa=noise["kappa"])
+    psi_map = list(sol.theta)
+    if lik.infer_px:
+        psi_map.append(np.log(noise["sigma_px"]))
+    if lik.infer_scene:
+        psi_map.append(np.log(noise["kappa"]))
+    if lik.outliers:
+        w = float(np.clip(noise["outlier_frac"], 1e-4, 0.5))
+        psi_map.append(np.log(w / (1.0 - w)))
+    ndim = len(psi_map)
+    cov = np.zeros((ndim, ndim))
+    cov[:7, :7] = sol.cov_theta
+    for k in range(7, ndim):
+        cov[k, k] = 1.0 / lik.n                 # ~ squared relative sd of a noise estimate
+    if lik.outliers:                            # logit w: ~ Beta(1, 19) prior's spread
+        cov[-1, -1] = 1.0
+    return np.array(psi_map), cov, sol.q
+
+
+def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
+    """phi draws and the Posterior object (step 6)."""
+    psi, diag = run["psi"], run["diagnostics"]
+    phi = prior.sample_phi(psi[:, :7], rng=rng)
+    return Posterior(
+        param_samples=from_identifiable(psi[:, :7], phi),
+        point_samples=lik.points_3d(psi, run["q"]), noise_samples=psi[:, 7:],
+        noise_names=lik.extra_names, pixels=lik.pixels, approx_points=lik.approx,
+        sigma_px=sigma_px, sigma_scene=None if sigma_scene is None else
+        np.broadcast_to(np.asarray(sigma_scene, float), lik.approx.shape).copy(),
+        prior=prior, map_result=map_res, tau=diag.tau, ess=diag.ess,
+        n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,
+        converged=diag.converged, acceptance=diag.acceptance,
+        imh_acceptance=run["imh_acceptance"], diagnostics=diag,
+        outlier_prob=_outlier_prob(lik, psi, run["q"]))
+
+
+def _check_noise_bounds(post):
+    for k, name in enumerate(post.noise_names):
+        if name not in NOISE_BOUNDS:
+            continue
+        lo = NOISE_BOUNDS[name][0]
+        if np.quantile(np.exp(post.noise_samples[:, k]), 0.05) < 2 * lo:
+            warnings.warn(f"the posterior of the inferred {name} reaches its prior's lower "
+                          f"bound {lo:g}: the data cannot separate the noise levels (too few "
+                          f"points?); give {name if name == 'sigma_px' else 'sigma_scene'} "
+                          f"explicitly", NoiseAtBoundWarning, stacklevel=3)
+
+
+def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rng=None,
+                 n_walkers=None, n_steps=20000, init_from=None, progress=False):
+    """Brute-force emcee over the full joint ``(theta, q_1..q_N)`` (validation only).
+
+    This is the naive sampler the collapsed one replaces: ``7 + 2N`` dimensions,
+    slow to mix (``docs/bayes.md`` section 3). It exists to check the collapsed sampler on
+    small problems and as the benchmark baseline. Noise levels must be given.
+
+    Returns
+    -------
+    dict
+        ``chain`` (steps, walkers, 7 + 2N); ``theta`` (S, 7) and ``q`` (S, N, 2),
+        the second half of the chain flattened; ``tau``; ``acceptance``.
+    """
+    from ..fit.simultaneous import calibrate_simultaneous
+
+    rng = resolve_rng(rng)
+    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    if lik.n_noise:
+        raise ValueError("sample_joint needs sigma_px and sigma_scene given")
+    n = lik.n
+    ndim = 7 + 2 * n
+    n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)
+    res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
+                                 sigma_scene=sigma_scene, prior=prior)
+    sol = res.extras["map"]
+    center = np.concatenate([sol.theta, sol.q.ravel()])
+    # joint Laplace covariance would need the full matrix; a block start is enough
+    sd = np.concatenate([np.sqrt(np.diag(sol.cov_theta)),
+                         np.sqrt(np.einsum("nii->ni", sol.Cinv)).ravel()])
+
+    def logp(x):
+        x = np.atleast_2d(x)
+        theta, q = x[:, :7], x[:, 7:].reshape(len(x), n, 2)
+        lp = prior.logpdf_theta(theta)
+        ok = np.isfinite(lp)
+        out = np.full(len(x), -np.inf)
+        if ok.any():
+            out[ok] = lp[ok] + lik.log_joint(theta[ok], q[ok])
+        return np.where(np.isfinite(out), out, -np.inf)
+
+    p0 = center + 0.5 * sd * rng.standard_normal((n_walkers, ndim))
+    sampler = seeded_sampler(n_walkers, ndim, logp, rng, None)
+    sampler.run_mcmc(p0, int(n_steps), progress=progress)
+    chain = sampler.get_chain()
+    kept = chain[len(chain) // 2:].reshape(-1, ndim)
+    return {"chain": chain, "theta": kept[:, :7], "q": kept[:, 7:].reshape(-1, n, 2),
+            "tau": integrated_time(chain[len(chain) // 2:]),
+            "acceptance": float(np.mean(sampler.acceptance_fraction))}

@@ -1,0 +1,491 @@
+"""The steps of the collapsed sampler: coordinates, target, proposal fit, walkers, run.
+
+:func:`bayescal.mcmc.sampling.sample_collapsed` calls them in order:
+
+1. :func:`to_sampling` / :func:`from_sampling`: sampling coordinates (ring radii in
+   place of gamma, ``H = h * depth_scale`` in place of h, ``docs/bayes.md`` section 3);
+2. :class:`CollapsedTarget`: the log posterior with the points integrated out;
+3. :func:`tune_proposal`: short emcee runs (HMC, independence, DE) refit the
+   proposal and mass matrix and adapt the HMC step (:func:`fit_proposal`,
+   adaptive importance sampling, is kept for experiments: it failed on
+   prior-held ridges, ``docs/bayes.md`` section 3);
+4. :func:`run_until_converged`: emcee in chunks until the honest ESS rule holds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import expit, logit
+
+from ..stats.chains import ensemble_ess, integrated_time
+
+#: leapfrog steps per HMC move (tuning and production runs)
+HMC_LEAPFROG = 5
+
+
+def default_walkers(ndim):
+    """Default ensemble size: ``min(2 ndim + 2, max(24, ndim + 3))``.
+
+    The stopping rule fixes the chain's length in steps (``tau_factor`` times tau)
+    whatever the ensemble size, and the moves that do the mixing (independence,
+    HMC) act on each walker alone: every walker beyond what the ESS target needs
+    (ESS ~ walkers x 50 at the rule, so ~20 for 1000) only costs time. Small
+    problems keep emcee's ``2 ndim + 2``; the 21-dimensional floor-plan posterior
+    gets 24 walkers instead of 44 (1.7x faster at the same tau,
+    ``docs/floorplan.md`` section 10). :func:`de_move` then runs with fewer
+    walkers than emcee's red-blue rule of thumb.
+    """
+    return int(min(2 * ndim + 2, max(24, ndim + 3)))
+
+
+def min_walkers(ndim):
+    """Fewest walkers accepted: ``ndim + 2`` (the ensemble must span the sampled space:
+    emcee's initial-state check and the proposal's covariance fits need it)."""
+    return int(ndim) + 2
+
+
+def de_move():
+    """emcee's DEMove, allowed with fewer than ``2 ndim`` walkers.
+
+    Differential evolution proposes ``x + gamma (x_a - x_b)`` from two walkers of the
+    other half of the ensemble: a symmetric proposal, exact for any ensemble size.
+    With fewer than ``2 ndim`` walkers one step spans only a subspace, which emcee
+    warns about (``live_dangerously``); here it is the minority move beside
+    per-walker independence and HMC moves, which span every direction.
+    """
+    import emcee
+
+    return emcee.moves.DEMove(live_dangerously=True)
+
+
+def imh_df(ndim):
+    """Degrees of freedom of the independence proposal's Student-t: ``max(5, ndim)``.
+
+    Heavy tails keep the independence move safe where the posterior's tails are
+    heavier than the fit's, but they cost acceptance in many dimensions even when
+    the fit is perfect: against N(0, I_21), t_5 accepts 48 % and t_21 ~70 %. With
+    df growing with the dimension the 21-dimensional floor-plan posterior mixed
+    1.6x faster per step (``docs/floorplan.md`` section 10).
+    """
+    return max(5.0, float(ndim))
+
+__all__ = ["ring_scale", "depth_scale", "Coordinates", "log_jacobian", "to_sampling",
+           "from_sampling", "sampling_jacobian", "CollapsedTarget", "fit_proposal", "tune_proposal",
+           "seeded_sampler", "run_until_converged", "imh_df", "default_walkers",
+           "min_walkers", "de_move"]
+
+
+def ring_scale(theta, rho_ref=np.inf):
+    """The laser ring's pixel radius per unit gamma, seen at horizontal range ``rho_ref``.
+
+    A laser point at horizontal range ``rho`` sits at elevation ``e`` with
+    ``tan(e) = cot(beta) - h / rho`` and images at ``gamma cos(e) / (xi - sin(e))`` px
+    from the principal point. The data pin this radius at the points' ranges, not
+    gamma, xi and beta one by one, so the sampler works with ``R_u = gamma_u *
+    ring_scale`` and ``R_v = gamma_v * ring_scale`` in place of ``gamma_u``,
+    ``gamma_v``. ``rho_ref = inf`` gives the asymptotic ring,
+    ``sin(beta) / (xi - cos(beta))`` (independent of h); a finite ``rho_ref`` (the
+    points' median range) removes most of the ridge's curvature in small rooms
+    (``docs/bayes.md`` section 3).
+    """
+    xi, h, beta = theta[..., 0], theta[..., 5], theta[..., 6]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if np.isinf(rho_ref):
+            se, ce = np.cos(beta), np.sin(beta)
+        else:
+            te = 1.0 / np.tan(beta) - h / rho_ref
+            ce = 1.0 / np.sqrt(1.0 + te * te)
+            se = te * ce
+        return np.where(xi - se > 0, ce / (xi - se), np.nan)
+
+
+def depth_scale(theta):
+    """``(1 - xi cos(beta)) sin(beta) / (xi - cos(beta))``: the ring radius' sensitivity to
+    ``h / rho``.
+
+    A point at horizontal range ``rho`` images at radius
+    ``gamma * ring_scale * (1 - depth_scale * h / rho + ...)`` (asymptotic ring):
+    after the ring radius, the data pin ``h * depth_scale``, a curved ridge in
+    ``(xi, h, beta)``; the sampler uses it in place of ``h``. It depends on xi and
+    beta only, so the change of coordinates stays triangular.
+    """
+    xi, beta = theta[..., 0], theta[..., 6]
+    return (1.0 - xi * np.cos(beta)) * ring_scale(theta)
+
+
+class Coordinates:
+    """The sampler's coordinates ``s`` of the globals ``psi``.
+
+    ``(gamma_u, gamma_v)`` are replaced by the ring radii ``R = gamma *
+    ring_scale(theta, rho_ref)`` and ``h`` by ``H = h * depth_scale`` (``docs/bayes.md``
+    section 3). The map is triangular (H from (xi, beta, h), then R from gamma and
+    (xi, beta, h)), so its inverse and Jacobian are closed-form.
+
+    Parameters
+    ----------
+    rho_ref : float, optional
+        Horizontal range (mm) at which the ring radius is taken: the median range
+        of the MAP's points; ``inf`` (default) is the asymptotic ring.
+    frac_index : int, optional
+        Index in psi of ``logit w``, the outlier fraction, if sampled. It is sampled
+        as ``w^(1/3)``: with few or no outliers the posterior of w is close to a
+        Gamma with shape ~1, whose cube root is nearly normal (Wilson-Hilferty),
+        while ``logit w = log w + ...`` is skewed (skewness ~ -1.1) with an
+        exponential left tail, which a fitted independence proposal matches badly
+        (``docs/bayes.md`` section 3).
+    """
+
+    def __init__(self, rho_ref=np.inf, frac_index=None):
+        rho_ref = float(np.inf if rho_ref is None else rho_ref)
+        if not rho_ref > 0:
+            raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
+        self.rho_ref = rho_ref
+        self.frac_index = None if frac_index is None else int(frac_index)
+
+    def __repr__(self):
+        return f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index})"
+
+    def to_sampling(self, psi):
+        """psi (..., d) -> s (..., d)."""
+        s = np.array(psi, dtype=float)
+        k = ring_scale(s, self.rho_ref)
+        s[..., 1] *= k
+        s[..., 2] *= k
+        s[..., 5] *= depth_scale(s)
+        if self.frac_index is not None:
+            s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
+        return s
+
+    def from_sampling(self, s):
+        """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
+        psi = np.array(s, dtype=float)
+        psi[..., 5] /= depth_scale(psi)
+        k = ring_scale(psi, self.rho_ref)
+        psi[..., 1] /= k
+        psi[..., 2] /= k
+        if self.frac_index is not None:
+            y = psi[..., self.frac_index]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
+        return psi
+
+    def log_jacobian(self, psi):
+        """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = (-2.0 * np.log(ring_scale(psi, self.rho_ref))
+                   - np.log(np.abs(depth_scale(psi))))
+            if self.frac_index is not None:
+                # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
+                y = np.cbrt(expit(psi[..., self.frac_index]))
+                out = out + np.log(3.0) - np.log(y) - np.log1p(-y**3)
+        return out
+
+    def jacobian(self, psi, eps=1e-7):
+        """``d s / d psi`` at one psi (d,) by central differences, shape (d, d)."""
+        psi = np.asarray(psi, float)
+        d = len(psi)
+        J = np.empty((d, d))
+        for k in range(d):
+            h = eps * max(1.0, abs(psi[k]))
+            e = np.zeros(d)
+            e[k] = h
+            J[:, k] = (self.to_sampling(psi + e) - self.to_sampling(psi - e)) / (2 * h)
+        return J
+
+
+_ASYMPTOTIC = Coordinates()
+
+
+def to_sampling(psi):
+    """:meth:`Coordinates.to_sampling` with the asymptotic ring (``rho_ref = inf``)."""
+    return _ASYMPTOTIC.to_sampling(psi)
+
+
+def from_sampling(s):
+    """Inverse of :func:`to_sampling`."""
+    return _ASYMPTOTIC.from_sampling(s)
+
+
+def log_jacobian(psi):
+    """``log |d psi / d s|`` of :func:`from_sampling` at psi (..., d)."""
+    return _ASYMPTOTIC.log_jacobian(psi)
+
+
+def sampling_jacobian(psi, eps=1e-7):
+    """``d to_sampling / d psi`` at one psi (d,) by central differences, shape (d, d)."""
+    return _ASYMPTOTIC.jacobian(psi, eps)
+
+
+class CollapsedTarget:
+    """Vectorized log posterior with the points integrated out, in sampling coordinates.
+
+    Parameters
+    ----------
+    lik : likelihood
+        Provides ``laplace(psi, q0, n_iter=...)`` and ``log_prior_extra(extra)``.
+    prior : Prior
+        Prior of theta (``logpdf_theta``).
+    q_start : ndarray, shape (N, k)
+        Start of each point's Gauss-Newton step (the MAP's points).
+    n_iter : int
+        Gauss-Newton iterations per evaluation.
+    coords : Coordinates, optional
+        Sampling coordinates (default: the asymptotic ring).
+
+    Called with sampling coordinates ``s`` (W, d); returns log densities (W,),
+    ``-inf`` outside the support. The density includes the Jacobian
+    ``|d psi / d s|`` (:func:`log_jacobian`) of the change of variables.
+    """
+
+    def __init__(self, lik, prior, q_start, n_iter, coords=None):
+        self.lik, self.prior, self.q_start, self.n_iter = lik, prior, q_start, n_iter
+        self.coords = _ASYMPTOTIC if coords is None else coords
+        self.n_calls = 0
+
+    def log_prior(self, psi):
+        """Log prior of psi (..., d) (theta's prior plus the extra globals')."""
+        return self.prior.logpdf_theta(psi[..., :7]) + self.lik.log_prior_extra(psi[..., 7:])
+
+    def __call__(self, s):
+        s = np.atleast_2d(s)
+        self.n_calls += len(s)
+        psi = self.coords.from_sampling(s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lp = self.log_prior(psi) + self.coords.log_jacobian(psi)
+        out = np.full(len(psi), -np.inf)
+        ok = np.isfinite(lp)
+        if np.any(ok):
+            out[ok] = lp[ok] + self._log_marginal(psi[ok])
+        return np.where(np.isfinite(out), out, -np.inf)
+
+
+    def _log_marginal(self, psi):
+        """The likelihood's log marginal; its ``log_marginal`` where it has one (cheaper)."""
+        fn = getattr(self.lik, "log_marginal", None)
+        if callable(fn):
+            return fn(psi, self.q_start, n_iter=self.n_iter)
+        return self.lik.laplace(psi, self.q_start, n_iter=self.n_iter)[0]
+
+    @property
+    def has_gradient(self):
+        """Whether the likelihood offers ``grad_log_marginal`` (else gradient moves are off)."""
+        return callable(getattr(self.lik, "grad_log_marginal", None))
+
+    def _log_prior_s(self, s):
+        """Log prior of psi plus the log Jacobian, as a function of ``s`` (..., d)."""
+        psi = self.coords.from_sampling(s)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.log_prior(psi) + self.coords.log_jacobian(psi)
+
+    def value_and_grad(self, s, eps=1e-6):
+        """Log density (W,) and its gradient (W, d) in sampling coordinates.
+
+        The likelihood part is analytic (``lik.grad_log_marginal``), chained
+        through ``d psi / d s``; the prior and the change-of-variables term
+        (cheap) by central differences, all walkers and directions in one call.
+        The value is exactly :meth:`__call__`'s. NaN gradient where the value is
+        ``-inf``.
+        """
+        s = np.atleast_2d(np.asarray(s, float))
+        W, d = s.shape
+        self.n_calls += W
+        h = eps * np.maximum(1.0, np.abs(s))                      # (W, d)
+        E = np.eye(d)[:, None, :] * h[None]                       # (d, W, d)
+        sp = np.concatenate([s[None] + E, s[None] - E])           # (2d, W, d)
+        with np.errstate(invalid="ignore"):
+            g_prior = ((self._log_prior_s(sp[:d]) - self._log_prior_s(sp[d:])).T / (2 * h))
+            dpsi = ((self.coords.from_sampling(sp[:d]) - self.coords.from_sampling(sp[d:]))
+                    / (2 * h.T[..., None]))
+        lp = self._log_prior_s(s)
+        psi = self.coords.from_sampling(s)
+        out = np.full(W, -np.inf)
+        grad = np.full((W, d), np.nan)
+        ok = np.isfinite(lp)
+        if np.any(ok):
+            ll, g_psi = self.lik.grad_log_marginal(psi[ok], self.q_start, n_iter=self.n_iter)
+            out[ok] = lp[ok] + ll
+            # dpsi[k, w, j] = d psi_j / d s_k
+            grad[ok] = g_prior[ok] + np.einsum("kwj,wj->wk", dpsi[:, ok], g_psi)
+        bad = ~np.isfinite(out)
+        out[bad] = -np.inf
+        grad[bad] = np.nan
+        return out, grad
+
+def _t_draws(mean, L, df, n, rng):
+    """n draws of the multivariate t_df(mean, L L^T) and their log density (up to const)."""
+    z = rng.standard_normal((n, len(mean)))
+    w = rng.chisquare(df, size=n) / df
+    x = mean + (z / np.sqrt(w)[:, None]) @ L.T
+    m = np.sum(np.linalg.solve(L, (x - mean).T) ** 2, axis=0)
+    return x, -0.5 * (df + len(mean)) * np.log1p(m / df) - np.sum(np.log(np.diag(L)))
+
+
+def fit_proposal(target, mean, cov, rng, *, n_draws, n_rounds=4, df=5.0, inflate=2.0):
+    """Fit a Student-t to the target by adaptive importance sampling.
+
+    Each round draws ``n_draws`` points from ``t_df(mean, cov)``, weights them by
+    ``target / proposal`` and replaces mean and covariance by the weighted
+    moments. The first round's covariance is ``inflate * cov`` so that a too
+    narrow Laplace covariance (a curved or skewed, prior-held ridge) is
+    corrected from outside. No chain is run: the draws are independent, so the
+    fit does not inherit a sticky chain's autocorrelation.
+
+    Returns
+    -------
+    dict
+        ``mean`` (d,), ``cov`` (d, d), ``draws`` (n, d) and normalised ``weights``
+        (n,) of the last round, ``ess_weights`` per round (importance-sampling
+        effective sizes) and ``logw_sd`` (sd of the last round's log weights: ~0
+        when the proposal fits, ~1 at 40 % independence acceptance).
+    """
+    mean = np.asarray(mean, float)
+    cov = inflate * np.asarray(cov, float)
+    ess_w, logw_sd = [], float("nan")
+    for _ in range(int(n_rounds)):
+        L = np.linalg.cholesky(cov + 1e-12 * np.diag(np.diag(cov)))
+        x, lq = _t_draws(mean, L, df, int(n_draws), rng)
+        logw = target(x) - lq
+        ok = np.isfinite(logw)
+        if ok.sum() < 2 * len(mean) + 2:
+            break
+        w = np.zeros(len(x))
+        w[ok] = np.exp(logw[ok] - logw[ok].max())
+        w /= w.sum()
+        ess_w.append(float(1.0 / np.sum(w * w)))
+        logw_sd = float(np.std(logw[ok]))
+        new_mean = w @ x
+        xc = x - new_mean
+        new_cov = (w[:, None] * xc).T @ xc
+        if ess_w[-1] < 2 * len(mean) + 2 or np.any(np.linalg.eigvalsh(new_cov) <= 0):
+            cov = 2.0 * cov                        # weights degenerate: widen and retry
+            continue
+        mean, cov = new_mean, new_cov
+    return {"mean": mean, "cov": cov, "draws": x, "weights": w, "ess_weights": ess_w,
+            "logw_sd": logw_sd}
+
+
+def tune_proposal(target, p0, mean, cov, rng, *, n_steps, n_rounds=3, moves=None,
+                  gradient=False, step_size=0.3):
+    """Fit the proposal (and the HMC step) from short emcee runs, each using the previous fit.
+
+    Round r runs ``n_steps`` steps with the independence proposal ``t_5(mean, cov)``
+    (inflated 1.5x in the first round, whose ``cov`` is the Laplace one) mixed with
+    DEMove and, with ``gradient=True``, :class:`~bayescal.mcmc.moves.HMCMove` (mass
+    matrix ``cov^-1``, step size adapted towards 75 % acceptance, carried over
+    rounds). Each round refits mean and covariance from the last two thirds of
+    its chain: as the proposal and the mass matrix improve, the chain mixes
+    faster and the next fit is better. These chains are discarded.
+
+    Returns
+    -------
+    dict
+        ``mean``, ``cov``, ``state`` (the last walker positions), ``acceptance``
+        per round, ``step_size`` (the adapted HMC step, or the input).
+    """
+    from .moves import HMCMove, IndependenceMove
+
+    state, acc, prev = p0, [], None
+    ndim = len(mean)
+    for r in range(int(n_rounds)):
+        imh = IndependenceMove(mean, (1.5 if r == 0 else 1.0) * cov, scale=1.1,
+                               df=imh_df(ndim))
+        if moves is not None:
+            mv = moves
+        elif gradient:
+            hmc = HMCMove(target.value_and_grad, cov, step_size=step_size,
+                          n_steps=HMC_LEAPFROG, adapt=True)
+            mv = [(hmc, 0.3), (imh, 0.6), (de_move(), 0.1)]
+        else:
+            mv = [(imh, 0.7), (de_move(), 0.3)]
+        tune = seeded_sampler(len(p0), ndim, target, rng, mv)
+        state = tune.run_mcmc(state, int(n_steps), progress=False)
+        acc.append(float(np.mean(tune.acceptance_fraction)))
+        if moves is None and gradient:
+            step_size = hmc.step_size
+        ch = tune.get_chain(discard=int(n_steps) // 3).reshape(-1, ndim)
+        # pool with the previous round's draws (valid posterior draws too, after their
+        # burn-in): twice the draws for the covariance of many coordinates
+        ch, prev = (ch if prev is None else np.concatenate([prev, ch])), ch
+        new_cov = np.cov(ch, rowvar=False)
+        if np.all(np.linalg.eigvalsh(new_cov) > 0):
+            mean, cov = ch.mean(axis=0), new_cov
+    return {"mean": mean, "cov": cov, "state": state, "acceptance": acc,
+            "step_size": float(step_size)}
+
+
+def seeded_sampler(nwalkers, ndim, fn, rng, moves):
+    """emcee EnsembleSampler (vectorized) whose legacy RandomState is seeded from ``rng``."""
+    import emcee
+
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, fn, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(
+        np.random.MT19937(rng.integers(2**32))).get_state()
+    return sampler
+
+
+def _assess(chain, tau_factor, burn_factor, coords=None):
+    """Burn-in, honest ESS and tau of a chain (T, W, d) in sampling coordinates; the verdict.
+
+    ESS is that of the parameters (``from_sampling``: what the user averages); tau,
+    for the ``tau_factor`` rule, is the larger of the parameter's and its sampling
+    coordinate's (``W T / ESS`` each), so neither is cut short.
+    """
+    total = len(chain)
+    tau_w = integrated_time(chain[total // 5:])      # first fifth: provisional burn-in
+    # at least a quarter: the start (the last tuning state) can sit off the stationary
+    # spread along the ridge for longer than the stationary tau suggests
+    burn = int(min(max(np.ceil(burn_factor * np.max(tau_w)), total // 4), total // 2)) \
+        if np.all(np.isfinite(tau_w)) else total // 2
+    kept = chain[burn:]
+    _, tau_s = ensemble_ess(kept)
+    ess, tau_p = ensemble_ess((coords or _ASYMPTOTIC).from_sampling(kept))
+    tau = np.maximum(tau_s, tau_p)
+    converged = bool(np.all(np.isfinite(tau)) and total - burn > tau_factor * np.max(tau))
+    return burn, ess, tau, converged
+
+
+def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, progress,
+                        burn_factor=5.0, coords=None):
+    """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
+
+    The progress bar shows the percentage of the stopping rule met so far: the
+    smaller of ``min ESS / min_ess`` and ``kept steps / (tau_factor * max tau)``.
+
+    Returns
+    -------
+    dict
+        ``tau``, ``ess`` (per coordinate, :func:`bayescal.stats.chains.ensemble_ess`),
+        ``burn``, ``n_steps``, ``converged`` (the 50-tau part of the rule and the
+        ESS target both met).
+    """
+    state, total, info, pbar = p0, 0, {}, None
+    if progress:
+        from tqdm.auto import tqdm
+
+        pbar = tqdm(total=100, desc="stopping rule", unit="%", leave=False)
+    try:
+        while total < max_steps:
+            n = min(chunk, max_steps - total)
+            state = sampler.run_mcmc(state, n, progress=False)
+            total += n
+            burn, ess, tau, long_enough = _assess(sampler.get_chain(), tau_factor, burn_factor,
+                                                 coords)
+            done = long_enough and np.min(ess) >= min_ess
+            info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(done),
+                    "ess": ess}
+            if pbar is not None:
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    frac = min(np.min(ess) / min_ess, (total - burn) / (tau_factor * np.max(tau)))
+                pbar.n = int(100 * np.clip(np.nan_to_num(frac), 0.0, 1.0))
+                pbar.set_postfix(steps=total, ess=f"{np.min(ess):.0f}", tau=f"{np.max(tau):.1f}")
+                pbar.refresh()
+            if done:
+                break
+            # grow the next chunk to what the current tau says is still needed
+            need_len = max(tau_factor * np.max(tau), min_ess * np.max(tau) / sampler.nwalkers)
+            need = need_len + burn - total if np.isfinite(need_len) else chunk
+            chunk = int(np.clip(1.2 * need, 50, max(chunk, 50) * 4))
+    finally:
+        if pbar is not None:
+            pbar.close()
+    return info

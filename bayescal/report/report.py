@@ -1,0 +1,308 @@
+"""The calibration report: built from a result object, rendered to Markdown and HTML.
+
+:func:`write_report` takes a :class:`~bayescal.CalibrationResult` or a
+:class:`~bayescal.Posterior` (the shared vocabulary: ``params``, ``points``,
+``covariance()``, ``point_covariance()``, ``summary()``), the run record
+(``run.json``, :mod:`bayescal.io.runinfo`), the laser data and optionally the truth
+of a simulation. It draws the figures (:mod:`bayescal.plotting`) and builds one
+:class:`~bayescal.report.document.Document`, written as ``report.md`` and a
+self-contained ``report.html``.
+
+Contents: the parameter table (estimate or mean, sd, 90 % interval, the
+"prior-dominated" flag: the data do not determine the parameter, its prior
+does), warnings (noise estimate far from the noise used, unconverged runs,
+a failed predictive check), the accuracy against the truth, the model check
+and the input lines flagged as outliers (:mod:`bayescal.checks.model`),
+diagnostics, and the figures (the plan view for a floor-plan run).
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+from ..results.calibration import linear_reconstruction
+from ..results.posterior import PRIOR_DOMINATED_RATIO
+from ..sensor.parameters import IDENTIFIABLE_NAMES, SensorParams
+from .document import Document, write_document
+
+__all__ = ["write_report", "parameter_rows", "accuracy", "linear_reconstruction",
+           "report_figures"]
+
+
+def _is_posterior(result):
+    return hasattr(result, "param_samples")
+
+
+def parameter_rows(result, *, prior=None):
+    """One dict per parameter (``name, mean, sd, q05, q95, prior_dominated`` and more)."""
+    if _is_posterior(result):
+        return result.summary_rows()
+    return result.summary_rows(prior=prior, ratio_limit=PRIOR_DOMINATED_RATIO)
+
+
+def accuracy(points, truth):
+    """Mean, median and max 3D error (mm) of ``points`` against ``truth["points"]``, or None."""
+    if truth is None or points is None or truth.get("points") is None:
+        return None
+    tp = np.asarray(truth["points"], float)
+    if tp.shape != np.shape(points):
+        return None
+    from ..results.metrics import reconstruction_errors
+
+    err = reconstruction_errors(points, tp)
+    return {"mean_error_mm": float(np.nanmean(err)), "median_error_mm": float(np.nanmedian(err)),
+            "max_error_mm": float(np.nanmax(err))}
+
+
+def _num(v, fmt=".5g"):
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    return "nan" if not np.isfinite(v) else format(v, fmt)
+
+
+def _table(rows, truth):
+    extra = [c for c in ("tau", "ess", "sd_ratio") if c in rows[0]]
+    head = ["parameter", "estimate/mean", "sd", "5 %", "95 %"] + extra + ["prior-dominated"]
+    if truth is not None:
+        head.append("truth")
+    body = []
+    for r in rows:
+        cells = [r["name"]] + [_num(r.get(c)) for c in ["mean", "sd", "q05", "q95"] + extra]
+        cells.append("**yes**" if r.get("prior_dominated") else "no")
+        if truth is not None:
+            cells.append(_num(truth["params"][r["name"]]))
+        body.append(cells)
+    return head, body, [bool(r.get("prior_dominated")) for r in rows]
+
+
+def _sigma_used(result, info):
+    if _is_posterior(result):
+        return None
+    return info.get("sigma_px") or result.extras.get("sigma_px") or result.sigma_px_estimated
+
+
+def _residual_figure(result, info, pixels):
+    from ..checks.residuals import least_squares_residuals, posterior_residuals
+    from ..plotting import plot_pixel_residuals
+
+    if _is_posterior(result):
+        z = posterior_residuals(result, n_draws=100)
+        return plot_pixel_residuals(pixels, z, title="Pixel residuals under 100 posterior draws "
+                                    "(each point through its own draw)")
+    if result.method == "sequential":
+        return _sequential_figure(result)
+    if result.points is None:
+        return None
+    spx = _sigma_used(result, info)
+    ssc = result.extras.get("sigma_scene")
+    raw, z = least_squares_residuals(result, pixels, spx, ssc)
+    if result.extras.get("walls") is not None:
+        how = "across each point's track on its wall (its azimuth absorbs the other), / sd"
+    elif ssc is not None:
+        how = "each divided by its sd after the fit, sigma_px sqrt(1 - leverage)"
+    else:
+        how = f"divided by {spx:.3g} px x sqrt(1 - {result.n_unknowns}/{result.n_residuals})"
+    return plot_pixel_residuals(pixels, z, raw=raw, title=f"Least-squares pixel residuals, {how}")
+
+
+def _sequential_figure(result):
+    """Both stages' standardized residuals, or None for a failed run or an old file."""
+    from ..fit.sequential import sequential_residuals
+    from ..plotting import plot_sequential_residuals
+
+    try:
+        return plot_sequential_residuals(sequential_residuals(result))
+    except (TypeError, ValueError):
+        return None
+
+
+def _check_figures(out, result, info, *, recon, truth, check):
+    """The plan view (plan runs) and the predictive-check plot: ``{key: (caption, path)}``."""
+    from ..io.planfile import plan_from_record
+    from ..plotting import savefig
+    from ..plotting.checks import plot_predictive_check
+    from ..plotting.plan import plan_figure
+
+    figs = {}
+    plan = plan_from_record(info.get("plan"))
+    if plan is not None:
+        figs["plan"] = ("Floor plan: the plan as given (dashed), the estimated walls with draws "
+                        "of their uncertainty, the points with their ellipses",
+                        savefig(plan_figure(result, plan, recon=recon, truth=truth),
+                                out / "plan.png"))
+    if check is not None:
+        fig = plot_predictive_check(check, azimuth=check["azimuth"],
+                                    outlier_prob=getattr(result, "outlier_prob", None))
+        figs["predictive"] = ("Posterior predictive check: each point's sum of squared "
+                              "standardized residuals against its 99.9 % model bound",
+                              savefig(fig, out / "predictive.png"))
+    return figs
+
+
+def report_figures(out, result, info, *, data, recon, truth, check=None):
+    """Draw the report's figures into ``out``; returns ``{key: (caption, path)}``."""
+    from ..plotting import plot_corner, plot_image, plot_reconstruction_ellipses, savefig
+
+    out = pathlib.Path(out)
+    size = tuple(info.get("image_size") or (800, 600))
+    figs = {"image": ("Laser pixels in the image",
+                      savefig(plot_image(data.pixels, params=result.params, image_size=size),
+                              out / "image.png"))}
+    fig = _residual_figure(result, info, data.pixels)
+    if fig is not None:
+        what = ("Standardized residuals of both stages"
+                if getattr(result, "method", None) == "sequential"
+                else "Standardized pixel residuals")
+        figs["residuals"] = (what, savefig(fig, out / "residuals.png"))
+    if recon is not None:
+        tp = None if truth is None else np.asarray(truth.get("points"), float)
+        walls = None if truth is None or truth.get("walls") is None else np.asarray(
+            truth["walls"], float)
+        figs["reconstruction"] = ("Reconstruction with 95 % uncertainty", savefig(
+            plot_reconstruction_ellipses(*recon, approx_points=data.approx_points, truth=tp,
+                                         walls=walls), out / "reconstruction.png"))
+    if _is_posterior(result):
+        tpar = None if truth is None else SensorParams(**truth["params"])
+        figs["corner"] = ("Posterior of the eight parameters (corner plot)",
+                          savefig(plot_corner(result, truth=tpar), out / "corner.png"))
+    figs.update(_check_figures(out, result, info, recon=recon, truth=truth, check=check))
+    return figs
+
+
+def _warnings(result, info, data):
+    from ..checks.residuals import noise_warnings
+
+    if _is_posterior(result):
+        out = [] if result.converged else [
+            "The sampler did not converge (chains shorter than 50 autocorrelation times): the "
+            "means, sds and intervals below are not reliable."]
+        return out
+    used = info.get("sigma_px") or (data.sigma_px if data is not None else None)
+    return noise_warnings(result, used)
+
+
+def _intro(doc, result, info):
+    status = "converged" if result.converged else "**NOT CONVERGED**"
+    doc.paragraph(f"Method: **{info.get('method', getattr(result, 'method', 'bayes'))}**; "
+                  f"status: {status}.")
+    if not _is_posterior(result) and result.message:
+        doc.paragraph(f"Solver message: {result.message}.")
+    ins = [v for v in (info.get("inputs") or {}).values() if v]
+    if ins:
+        doc.paragraph("Inputs: " + ", ".join(f"`{v}`" for v in ins) + ".")
+    if info.get("sigma_px") is not None:
+        doc.paragraph(f"Pixel noise used: {_num(info['sigma_px'])} px "
+                      f"({info.get('sigma_px_how', 'given')}).")
+    if not _is_posterior(result) and result.sigma_px_estimated is not None:
+        doc.paragraph(f"Pixel noise estimated from the residuals: "
+                      f"{_num(result.sigma_px_estimated)} px.")
+    if info.get("sigma_scene"):
+        doc.paragraph(f"Scene uncertainty: {info['sigma_scene']}.")
+
+
+def _note():
+    return ("*Prior-dominated*: the data do not determine the parameter, its prior does (or "
+            f"it was held fixed). Either its sd exceeds {PRIOR_DOMINATED_RATIO:g} x its prior "
+            "sd (column sd_ratio, when a prior was used), or it lies on the exact phi/alpha "
+            "ridge: phi, alpha_u and alpha_v enter the model only through "
+            "gamma_u = alpha_u (xi + phi) and gamma_v = alpha_v (xi + phi). The seven "
+            "identifiable combinations are " + ", ".join(IDENTIFIABLE_NAMES) + ".")
+
+
+def _checks_section(doc, check, flagged):
+    doc.heading("Model check and outliers")
+    if flagged:
+        doc.paragraph(flagged + ".")
+    else:
+        doc.paragraph("No input line is flagged as an outlier (outlier_prob > 0.5 in "
+                      "points.csv).")
+    if check is None:
+        return
+    left = (f" ({check['excluded']} flagged outliers left out)" if check["excluded"] else "")
+    verdict = check["message"]
+    if not check["fits"]:
+        doc.warning(f"Posterior predictive check: {verdict}{left}. The intervals below assume "
+                    "the model; check the noise levels, the scene sds and the scene model "
+                    "(errors shared by a wall call for --walls).")
+    else:
+        doc.paragraph(f"Posterior predictive check: {verdict}{left}.")
+    doc.paragraph("p-values: " + ", ".join(f"{k} {v:.3g}" for k, v in
+                                          check["p_values"].items()) + ".")
+
+
+def build_document(result, info, *, rows, figs, acc, truth, warnings, title, check=None,
+                   flagged=None, summary=None):
+    """The report as a :class:`~bayescal.report.document.Document`."""
+    doc = Document(title)
+    _intro(doc, result, info)
+    for w in warnings:
+        doc.warning(w)
+    doc.heading("Parameters")
+    head, body, flags = _table(rows, truth)
+    doc.table(head, body, flags=flags)
+    doc.paragraph(_note())
+    if acc:
+        doc.heading("Accuracy against the simulation truth")
+        doc.paragraph(f"Mean 3D error {acc['mean_error_mm']:.1f} mm, median "
+                      f"{acc['median_error_mm']:.1f} mm, max {acc['max_error_mm']:.1f} mm.")
+    if info.get("method") != "sequential":
+        _checks_section(doc, check, flagged)
+    doc.heading("Diagnostics")
+    doc.preformatted(summary or result.summary())
+    doc.heading("Figures")
+    for key in ("plan", "corner", "predictive", "residuals", "reconstruction", "image"):
+        if key in figs:
+            doc.figure(*figs[key])
+    return doc
+
+
+def write_report(out, result, info, *, data, recon=None, truth=None, prior=None, title=None):
+    """Write the figures, ``report.md`` and a self-contained ``report.html`` into ``out``.
+
+    Parameters
+    ----------
+    out : str or pathlib.Path
+        Existing folder.
+    result : CalibrationResult or Posterior
+    info : dict
+        The run record (``method``, ``inputs``, ``sigma_px``, ``sigma_scene``,
+        ``image_size``), see :func:`bayescal.io.runinfo.run_record`.
+    data : LaserData
+        The laser data the result was computed from.
+    recon : (ndarray (N, 3), ndarray (N, 3, 3)), optional
+        Reconstructed points (mm) and covariances (mm^2) for the ellipse plot
+        and the accuracy (default: the result's points, if any).
+    truth : dict, optional
+        ``{"params": {name: value}, "points": (N, 3), "walls": ...}`` of a simulation.
+    prior : dict, optional
+        The priors of a least-squares run, for the sd_ratio column.
+    title : str, optional
+
+    Returns
+    -------
+    files : dict of str to pathlib.Path
+        Every file written (figures, ``markdown``, ``html``).
+    accuracy : dict or None
+        See :func:`accuracy`.
+    """
+    out = pathlib.Path(out)
+    title = title or f"bayescal calibration report ({info.get('method', 'bayes')})"
+    from ..checks.datafile import flagged_text, located_summary
+    from ..checks.model import predictive_check
+
+    check = predictive_check(result, info, data.pixels, approx_points=data.approx_points)
+    figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
+    acc = accuracy(recon[0] if recon is not None else result.points, truth)
+    doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,
+                         acc=acc, truth=truth, warnings=_warnings(result, info, data),
+                         title=title, check=check,
+                         flagged=flagged_text(data, getattr(result, "outlier_prob", None)),
+                         summary=located_summary(result, data))
+    md, ht = write_document(doc, out, "report")
+    files = {k: p for k, (_, p) in figs.items()}
+    files.update(markdown=md, html=ht)
+    return files, acc

@@ -1,0 +1,173 @@
+"""The floor-plan least squares' result: plausibility checks and the CalibrationResult.
+
+Split out of :mod:`bayescal.fit.floorplan` (which solves): :func:`check_solution` tests a
+MAP against its plan and its pixel noise, :func:`make_result` turns a
+:class:`~bayescal.fit.floorplan.PlanMapSolution` into a
+:class:`~bayescal.results.calibration.CalibrationResult` (covariances, points, identifiability
+and, with the outlier mixture, ``outlier_prob``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from ..scene.floorplan import plan_point
+from ..sensor.parameters import (
+    IDENTIFIABLE_NAMES,
+    PARAM_NAMES,
+    SensorParams,
+    from_identifiable,
+    identifiable_jacobian,
+)
+from .calibration import CalibrationResult, ConvergenceError, identifiability_report
+
+__all__ = ["check_solution", "make_result", "CHECK_P", "N_RESTARTS"]
+
+#: p-value below which the MAP's wall-prior chi-square (or, with the pixel noise given, its
+#: pixel chi-square) marks a wrong minimum: restart, and fail if no start passes
+CHECK_P = 1e-6
+#: restarts from sensor draws of the prior when the first solution fails its checks
+N_RESTARTS = 4
+
+
+def check_solution(lik, sol):
+    """Plausibility of a MAP: walls against their plan, pixels against their noise.
+
+    At the MAP the wall prior residuals ``z = (w - plan) / sd`` have variance
+    ``1 - posterior var / prior var <= 1`` each, so ``sum z^2`` is at most a
+    chi-square with 2W degrees of freedom; with the pixel noise given, the pixel
+    chi-square has N (two rows, one azimuth per point); with the outlier mixture it
+    is the EM-weighted one (an outlier's rows at ``1 / c^2``). A p-value below
+    ``CHECK_P`` marks a wrong minimum (or a plan or noise inconsistent with the
+    data); only the wall checks fail the calibration, the pixel one restarts it. With
+    the mixture, a wall most of whose points are flagged as outliers fails too
+    (:func:`_outlier_walls`).
+    """
+    z = (sol.g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    wall_chi2 = float(z @ z)
+    p_wall = float(stats.chi2.sf(wall_chi2, z.size))
+    p_px = 1.0
+    if not lik.infer_px:
+        p_px = float(stats.chi2.sf(np.sum(sol.ne["R"] ** 2), lik.n))
+    k = int(np.argmax(np.abs(z)))
+    out = _outlier_walls(sol)
+    return {"ok": p_wall > CHECK_P and p_px > CHECK_P and not out,
+            "walls_ok": p_wall > CHECK_P, "wall_chi2": wall_chi2, "p_wall": p_wall,
+            "p_pixels": p_px, "worst": (lik.plan.param_names[k], float(z[k])),
+            "outlier_walls": out}
+
+
+def _outlier_walls(sol, *, min_points=3, share=0.5):
+    """Walls with most of their points flagged as outliers: ``[(wall, n_flagged, n_on)]``.
+
+    The mixture can explain a wall drawn far from where it is by declaring its points
+    outliers (measured: a wall 40 % too far, 12 of its 12 points flagged, the wall
+    check then passing); a wall with at least ``min_points`` flagged points making
+    more than ``share`` of its points is a wall-level error, not gross point errors.
+    """
+    em = getattr(sol, "em", None)
+    if em is None:
+        return []
+    flagged = em[1] > 0.5
+    on = np.bincount(sol.wall_index, minlength=1)
+    n_out = np.bincount(sol.wall_index[flagged], minlength=len(on))
+    bad = np.flatnonzero((n_out >= min_points) & (n_out > share * on))
+    return [(int(k), int(n_out[k]), int(on[k])) for k in bad]
+
+
+def make_result(lik, sol, absolute_sigma, raise_on_failure):
+    """The :class:`~bayescal.results.calibration.CalibrationResult` of a floor-plan MAP ``sol``."""
+    W, N = lik.n_walls, lik.n
+    g, sig = sol.g, sol.sigma_px
+    theta, phi = g[:7], g[7]
+    R = sol.ne["R0"]
+    # outliers (probability r) leave the noise statistics: each point counts 1 - r
+    em = getattr(sol, "em", None)
+    keep = np.ones(N) if em is None else 1.0 - em[1]
+    chi2 = float(np.sum(keep * np.sum(R * R, axis=1)))
+    n_res, n_unk = 2 * N, 7 + 2 * W + N
+    # plan rows carry the walls: one dof per point's pixel pair
+    red = chi2 / max(float(np.sum(keep)), 1.0)
+    scale = 1.0 if absolute_sigma else red
+    cov = sol.cov * scale
+    J = identifiable_jacobian(theta, phi)
+    cov8 = J @ cov[:8, :8] @ J.T
+    params = SensorParams.from_array(from_identifiable(theta, phi))
+    noise = {"sigma_px": sig, "kappa": None}
+    if em is not None:
+        noise["outlier_frac"] = float(em[2])
+    walls = g[8:].reshape(W, 2)
+    points = plan_point(theta, sol.t, walls[sol.wall_index, 0], walls[sol.wall_index, 1])
+    # identifiability of the 8 paper parameters from pixels and plan (walls reduced out,
+    # sensor priors left out)
+    Jp = sol.ne["Jp"]
+    info = sol.S.copy()
+    info[:8, :8] -= Jp.T @ Jp
+    info_t = info[:8, :8] - info[:8, 8:] @ np.linalg.solve(info[8:, 8:], info[8:, :8])
+    e, V = np.linalg.eigh(0.5 * (info_t[:7, :7] + info_t[:7, :7].T))
+    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
+    report = identifiability_report(root @ np.linalg.inv(J)[:7], PARAM_NAMES)
+    result = CalibrationResult(
+        method="simultaneous", params=params, points=points, covariance=0.5 * (cov8 + cov8.T),
+        covariance_identifiable=cov[:7, :7],
+        residual_rms={"pixel_px": float(np.sqrt(np.sum(keep[:, None] * (R * sig) ** 2)
+                                                / max(2 * np.sum(keep), 1e-300)))},
+        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
+        converged=bool(sol.converged and np.all(np.isfinite(g))), message=sol.message,
+        nfev=sol.nfev, identifiability=report,
+        extras={"walls": walls.copy(), "wall_covariance": cov[8:, 8:],
+                "wall_names": lik.plan.param_names, "wall_index": sol.wall_index,
+                "azimuths": sol.t, "point_covariance": _point_covariances(lik, sol) * scale,
+                "map": sol, "noise": noise, "theta": theta,
+                "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
+                "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1)},
+        outlier_prob=None if em is None else em[1].copy())
+    result.extras["check"] = sol.check
+    if result.converged:
+        _flag_failed_checks(result, sol.check, W)
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
+                               result=result)
+    return result
+
+
+def _flag_failed_checks(result, chk, W):
+    """Mark ``result`` unconverged, with the reason, if the walls failed their checks."""
+    if not chk["walls_ok"]:
+        result.converged = False
+        result.message = (
+            f"the walls of the best least-squares solution (of {N_RESTARTS + 1} starts) are "
+            f"far off the plan: wall chi-square {chk['wall_chi2']:.1f} on {2 * W} degrees of "
+            f"freedom (p = {chk['p_wall']:.2g}), worst {chk['worst'][0]} at "
+            f"{chk['worst'][1]:+.1f} prior sd; a local minimum, or a plan (or its sds) "
+            f"inconsistent with the pixels")
+    elif chk.get("outlier_walls"):
+        k, n_out, n_on = chk["outlier_walls"][0]
+        result.converged = False
+        result.message = (
+            f"{n_out} of the {n_on} points on wall {k} are flagged as outliers (probability "
+            f"> 0.5): the plan's wall {k} is likely wrong (a wall-level error, which the "
+            f"per-point outlier mixture cannot absorb honestly); check the plan, or refit with "
+            f"outliers=False to see its wall chi-square")
+
+
+def _point_covariances(lik, sol):
+    """3x3 Laplace covariance of each point (azimuth, sensor and wall uncertainty)."""
+    W, N = lik.n_walls, lik.n
+    g, t, cov, ne = sol.g, sol.t, sol.cov, sol.ne
+    k = sol.wall_index
+    walls = g[8:].reshape(W, 2)
+    _, dPt, dPth, dPw = plan_point(g[:7], t, walls[k, 0], walls[k, 1], jacobian=True)
+    idx = np.arange(N)
+    Gg = np.zeros((N, 3, 8 + 2 * W))
+    Gg[:, :, :7] = dPth
+    Gg[idx, :, 8 + 2 * k] = dPw[:, :, 0]
+    Gg[idx, :, 9 + 2 * k] = dPw[:, :, 1]
+    B, C = ne["B"], ne["C"]
+    K = -np.einsum("ij,nj->ni", cov, B) / C[:, None]              # cov(g, t_i): (N, G)
+    var_t = 1.0 / C + np.einsum("ni,ij,nj->n", B, cov, B) / C**2
+    GK = np.einsum("nai,ni->na", Gg, K)                            # (N, 3)
+    return (var_t[:, None, None] * dPt[:, :, None] * dPt[:, None, :]
+            + dPt[:, :, None] * GK[:, None, :] + GK[:, :, None] * dPt[:, None, :]
+            + np.einsum("nai,ij,nbj->nab", Gg, cov, Gg))

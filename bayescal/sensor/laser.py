@@ -1,0 +1,244 @@
+"""The laser projector: cone (eq. 3), image azimuth (eqs. 4-6), plane (eq. 2), triangulation.
+
+Frame L is frame C shifted by ``(0, 0, -h)``: the cone's apex is at
+``(0, 0, -h)`` in C, its axis is the vertical z axis and ``beta`` is its
+half-angle from that axis. A point of the cone at horizontal distance
+``rho = sqrt(x^2 + y^2)`` from the axis has ``z = rho / tan(beta) - h``
+(only the upper nappe, ``z > -h``, is lit).
+
+The laser points are written by their *scene coordinates* ``q = (x, y)``,
+the horizontal position where the ray meets the wall; the cone then gives
+``z``. This parameterization does not depend on the sensor parameters, which
+is what keeps the Bayesian posterior unbiased (``docs/bayes.md``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_finite_array, as_pixels
+from .camera import backproject_theta
+from .parameters import as_param_array, to_identifiable
+
+__all__ = [
+    "cone_point",
+    "cone_point_theta",
+    "triangulate",
+    "triangulate_theta",
+    "triangulate_plane",
+    "pixel_azimuth",
+    "cone_distance",
+]
+
+
+def cone_point_theta(theta, xy, *, jacobian=False):
+    """3D point of the laser cone above the scene position ``xy`` (internal).
+
+    Parameters
+    ----------
+    theta : ndarray, shape (..., 7)
+        Identifiable parameters; only ``h`` (index 5) and ``beta`` (6) are used.
+    xy : ndarray, shape (..., 2)
+        Horizontal position in frame C, mm.
+    jacobian : bool
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+    d_xy : ndarray, shape (..., 3, 2)
+        Only with ``jacobian=True``.
+    d_theta : ndarray, shape (..., 3, 7)
+        Only with ``jacobian=True`` (non-zero in the ``h`` and ``beta`` columns).
+    """
+    theta = np.asarray(theta, dtype=float)
+    h, beta = theta[..., 5], theta[..., 6]
+    x, y = xy[..., 0], xy[..., 1]
+    rho = np.sqrt(x * x + y * y)
+    tb = np.tan(beta)
+    z = rho / tb - h
+    pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    if not jacobian:
+        return pts
+    shape = pts.shape[:-1]
+    dxy = np.zeros(shape + (3, 2))
+    dxy[..., 0, 0] = 1.0
+    dxy[..., 1, 1] = 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(rho > 0, 1.0 / (rho * tb), 0.0)
+    dxy[..., 2, 0] = x * inv
+    dxy[..., 2, 1] = y * inv
+    dth = np.zeros(shape + (3, 7))
+    dth[..., 2, 5] = -1.0
+    dth[..., 2, 6] = -rho / np.sin(beta) ** 2
+    return pts, dxy, dth
+
+
+def cone_point(params, xy):
+    """Point of the laser cone above horizontal position(s) ``xy``.
+
+    Parameters
+    ----------
+    params : SensorParams or ndarray, shape (..., 8)
+    xy : array_like, shape (..., 2)
+        Horizontal position ``(x, y)`` in frame C, mm.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``(x, y, rho / tan(beta) - h)`` in mm.
+    """
+    theta = to_identifiable(as_param_array(params))
+    xy = as_finite_array(xy, "xy", last_dim=2)
+    return cone_point_theta(theta, xy)
+
+
+def triangulate_theta(theta, pixels, *, jacobian=False):
+    """Ray/cone intersection (internal, unchecked).
+
+    The ray ``t * d`` (unit ``d``, ``s = sqrt(d_x^2 + d_y^2)``) meets the upper
+    nappe at ``t = h tan(beta) / (s - d_z tan(beta))``, valid where the
+    denominator is positive.
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+        NaN where the ray misses the cone.
+    valid : ndarray of bool, shape (...)
+    d_pixels : ndarray, shape (..., 3, 2)
+        Only with ``jacobian=True``.
+    d_theta : ndarray, shape (..., 3, 7)
+        Only with ``jacobian=True``.
+    """
+    out = backproject_theta(theta, pixels, jacobian=jacobian)
+    d = out[0]
+    theta = np.asarray(theta, dtype=float)
+    h, beta = theta[..., 5], theta[..., 6]
+    T = np.tan(beta)
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    s = np.sqrt(dx * dx + dy * dy)
+    g = s - dz * T
+    valid = out[1] & (g > 0) & (s > 0)          # s = 0: straight down, only the apex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(valid, h * T / g, np.nan)
+    pts = t[..., None] * d
+    if not jacobian:
+        return pts, valid
+    ddpix, ddth = out[2], out[3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt_dd = np.stack(np.broadcast_arrays(dx / s, dy / s, -T + 0 * dz), axis=-1)
+        dt_dd = (-h * T / g**2)[..., None] * dt_dd          # (..., 3)
+    outer = d[..., :, None] * dt_dd[..., None, :]                # (..., 3, 3)
+    dP_dd = t[..., None, None] * np.eye(3) + outer
+    dpix = dP_dd @ ddpix
+    dth = dP_dd @ ddth
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt_dh = T / g
+        dt_db = h * s * (1.0 + T**2) / g**2
+    dth[..., :, 5] += d * dt_dh[..., None]
+    dth[..., :, 6] += d * dt_db[..., None]
+    return pts, valid, dpix, dth
+
+
+def triangulate(params, pixels, *, return_valid=False):
+    """Reconstruct laser pixels as 3D points on the laser cone.
+
+    Each pixel is back-projected to a ray from the mirror focus and
+    intersected with the cone of eq. (3).
+
+    Parameters
+    ----------
+    params : SensorParams or ndarray, shape (..., 8)
+    pixels : array_like, shape (..., 2)
+        ``(u, v)`` in px.
+    return_valid : bool, optional
+        Also return the mask of pixels whose ray meets the lit nappe of the cone.
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+        mm in frame C; NaN where the ray misses the cone (it points at or
+        above the cone's asymptotic direction, or has no back-projection).
+    valid : ndarray of bool, shape (...)
+        Only with ``return_valid=True``.
+    """
+    theta = to_identifiable(as_param_array(params))
+    pixels = as_pixels(pixels)
+    pts, valid = triangulate_theta(theta, pixels)
+    return (pts, valid) if return_valid else pts
+
+
+def triangulate_plane(params, pixels, plane, *, return_valid=False):
+    """Reconstruct pixels on the laser plane of eq. (2), ``a x + b y + c z + d = 0``.
+
+    Parameters
+    ----------
+    params : SensorParams or ndarray, shape (..., 8)
+        Only the camera parameters are used.
+    pixels : array_like, shape (..., 2)
+    plane : array_like, shape (..., 4)
+        ``(a, b, c, d)`` in frame C (``d`` in mm when ``(a, b, c)`` is unit).
+    return_valid : bool, optional
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+        NaN where the ray is parallel to the plane or meets it behind the focus.
+    valid : ndarray of bool, shape (...)
+        Only with ``return_valid=True``.
+    """
+    theta = to_identifiable(as_param_array(params))
+    pixels = as_pixels(pixels)
+    plane = as_finite_array(plane, "plane", last_dim=4)
+    if np.any(np.linalg.norm(plane[..., :3], axis=-1) == 0):
+        raise ValueError("plane normal (a, b, c) must be non-zero")
+    rays, ok = backproject_theta(theta, pixels)
+    denom = np.sum(rays * plane[..., :3], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -plane[..., 3] / denom
+    valid = ok & np.isfinite(t) & (t > 0)
+    with np.errstate(invalid="ignore"):
+        pts = np.where(valid[..., None], t[..., None] * rays, np.nan)
+    return (pts, valid) if return_valid else pts
+
+
+def pixel_azimuth(params, pixels):
+    """Azimuth of the laser ray seen at a pixel, eqs. (4)-(5).
+
+    Parameters
+    ----------
+    params : SensorParams or ndarray, shape (..., 8)
+    pixels : array_like, shape (..., 2)
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Azimuth in radians, ``atan2(y_I, x_I)`` with ``x_I = (u - u0) / alpha_u``
+        and ``y_I = (v - v0) / alpha_v``.
+    """
+    a = as_param_array(params)
+    pixels = as_pixels(pixels)
+    xI = (pixels[..., 0] - a[..., 4]) / a[..., 2]
+    yI = (pixels[..., 1] - a[..., 5]) / a[..., 3]
+    return np.arctan2(yI, xI)
+
+
+def cone_distance(h, beta, points):
+    """Signed distance (mm) of points from the cone surface, in their meridian plane.
+
+    ``rho cos(beta) - (z + h) sin(beta)``: positive outside the cone (further
+    from the axis than the cone), zero on it. Used to fit ``h`` and ``beta``
+    to measured laser points (sequential method).
+
+    Parameters
+    ----------
+    h : float or ndarray
+    beta : float or ndarray
+    points : array_like, shape (..., 3)
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    points = as_finite_array(points, "points", last_dim=3)
+    rho = np.hypot(points[..., 0], points[..., 1])
+    return rho * np.cos(beta) - (points[..., 2] + h) * np.sin(beta)
