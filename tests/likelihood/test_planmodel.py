@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from helpers import gross_plan_pixels
 from scipy import stats
 
 import bayescal as bc
@@ -414,23 +415,6 @@ def test_outlier_options_and_coordinates():
         PlanLikelihood(ds.pixels, plan, sigma_px=None).outlier_prob(psi[:-1])
 
 
-def _gross(ds, i, kind):
-    """Pixels of ``ds`` with point ``i`` grossly wrong: its pixel moved 30 px, or the laser
-    point 40 % beyond its wall (same azimuth, its pixel's noise kept)."""
-    from bayescal.scene.floorplan import plan_point
-    from bayescal.sensor.camera import project_theta
-
-    pix = ds.pixels.copy()
-    if kind == "pixel":
-        pix[i, 1] += 30.0
-        return pix
-    theta, P = ds.params.to_identifiable(), ds.points[i]
-    t, rho = np.arctan2(P[1], P[0]), np.hypot(P[0], P[1])
-    Q = plan_point(theta, np.array([t]), np.array([1.4 * rho]), np.array([t]))
-    pix[i] = project_theta(theta, Q)[0][0] + ds.pixels[i] - project_theta(theta, P[None])[0][0]
-    return pix
-
-
 @pytest.mark.parametrize("kind", ["pixel", "off_wall"])
 def test_em_flags_a_gross_error_and_keeps_the_sensor(kind):
     """One gross error among 580 points: the EM flags it (prob > 0.9, the others < 0.5) and
@@ -439,7 +423,7 @@ def test_em_flags_a_gross_error_and_keeps_the_sensor(kind):
     ds = bc.simulate_room(range_mm=1000.0, n_points=580, sigma_px=0.5, approx_error=0.05,
                           approx_model="wall", rng=0)
     i = 100
-    pix = _gross(ds, i, kind)
+    pix = gross_plan_pixels(ds, i, kind)
     clean = bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.5)
     sd = np.sqrt(np.diag(clean.covariance_identifiable))
     res = bc.calibrate_simultaneous(pix, ds.floor_plan, sigma_px=0.5)

@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+from helpers import gross_plan_pixels
 
 import bayescal as bc
 from bayescal.scene.floorplan import FloorPlan
@@ -174,13 +175,11 @@ def test_plan_posterior_with_a_gross_error_stays_near_the_clean_one(kind):
     1 clean-posterior sd of the clean run's; for the moved pixel, without it they do not
     (measured: 0.37 sd with, 1.6 sd without; the off-wall point moves its pixel 6 px only
     and pulls the pure model by 0.57 sd, so there is no contrast to assert)."""
-    from test_planmodel import _gross
-
     from bayescal.sensor.parameters import to_identifiable
 
     ds = bc.simulate_room(range_mm=1000.0, n_points=120, sigma_px=0.5, approx_error=0.05,
                           approx_model="wall", rng=3)
-    pix = _gross(ds, 40, kind)
+    pix = gross_plan_pixels(ds, 40, kind)
     kw = dict(min_ess=100, max_steps=1000, n_tune=40, n_samples=500)
     clean = to_identifiable(_short(ds.pixels, ds.floor_plan, **kw).param_samples)
     post = _short(pix, ds.floor_plan, **kw)
