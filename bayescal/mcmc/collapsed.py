@@ -30,6 +30,8 @@ from .steps import (
     min_walkers,
     run_until_converged,
     seeded_sampler,
+    spd_covariance,
+    spread_walkers,
     tune_proposal,
 )
 
@@ -210,13 +212,15 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         n_tune = 60 if target.has_gradient and moves is None else 150
     n_tune = int(n_tune)
     J = coords.jacobian(psi_map)
-    s_map, cov_s = coords.to_sampling(psi_map), J @ np.asarray(cov_psi_map, float) @ J.T
+    s_map = coords.to_sampling(psi_map)
+    cov_s = spd_covariance(J @ np.asarray(cov_psi_map, float) @ J.T,
+                           what="Laplace covariance at the least-squares start")
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
-    p0 = fit["state"]
+    p0 = spread_walkers(fit["state"], target, fit["cov"], rng)
     vg = target.value_and_grad if target.has_gradient else None
     # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
     n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
-    prod_moves = default_moves(fit["mean"], fit["cov"], value_and_grad=vg,
+    prod_moves = default_moves(fit["mean"], spd_covariance(fit["cov"], cov_s), value_and_grad=vg,
                                step_size=fit["step_size"], n_leapfrog=n_leap) \
         if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
