@@ -24,6 +24,8 @@ LAZY_METHOD_IMPORTS = {
     ("bayescal.results.calibration", "bayescal.io.jsonfile"),
     ("bayescal.results.posterior", "bayescal.io.jsonfile"),
     ("bayescal.results.posterior", "bayescal.plotting"),
+    ("bayescal.results.calibration", "bayescal.checks.model"),
+    ("bayescal.results.posterior", "bayescal.checks.model"),
 }
 #: the command line is a client of the public API: it may import the package itself
 #: (``import bayescal as bc``, so that it calls exactly what a user calls)

@@ -324,12 +324,23 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
         nfev=sol.nfev, identifiability=report,
         extras={"point_covariance": sol.cov_points * scale, "map": sol, "noise": noise,
                 "theta": sol.theta, "identifiable_names": IDENTIFIABLE_NAMES,
-                "reduced_chi2": red, "em_rounds": fit.n_rounds},
+                "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
     if not result.converged and raise_on_failure:
         raise ConvergenceError(f"simultaneous calibration did not converge: {sol.message}",
                                result=result)
     return result
+
+
+def _fitted_data(lik):
+    """What the result keeps of its data for its model check: pixels, approximate points
+    and the noise levels that were given (``None`` when inferred)."""
+    given = not lik.infer_scene
+    return {"pixels": lik.pixels.copy(), "approx_points": lik.approx.copy(),
+            "sigma_px": None if lik.infer_px else float(lik.sigma_px),
+            "sigma_scene": (np.where(lik.w_scene > 0, 1.0 / np.where(lik.w_scene > 0,
+                                                                      lik.w_scene, 1.0),
+                                     np.inf) * np.ones((lik.n, 3))) if given else None}
 
 
 def _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):

@@ -19,6 +19,7 @@ from .._validation import resolve_rng
 from ..errors import NoiseAtBoundWarning, NotConvergedError, NotConvergedWarning
 from ..likelihood.points import draw_points
 from ..stats.chains import ChainDiagnostics
+from .ensemble import spd_covariance, spread_walkers
 from .moves import HMCMove, IndependenceMove
 from .steps import (
     HMC_LEAPFROG,
@@ -30,8 +31,6 @@ from .steps import (
     min_walkers,
     run_until_converged,
     seeded_sampler,
-    spd_covariance,
-    spread_walkers,
     tune_proposal,
 )
 

@@ -292,9 +292,10 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     out = pathlib.Path(out)
     title = title or f"bayescal calibration report ({info.get('method', 'bayes')})"
     from ..checks.datafile import flagged_text, located_summary
-    from ..checks.model import predictive_check
+    from ..checks.model import model_check
 
-    check = predictive_check(result, info, data.pixels, approx_points=data.approx_points)
+    check = None if getattr(result, "method", None) == "sequential" or result.points is None \
+        else model_check(result, pixels=data.pixels, approx_points=data.approx_points, info=info)
     figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
     acc = accuracy(recon[0] if recon is not None else result.points, truth)
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,

@@ -65,7 +65,7 @@ __all__ = [
 RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
-_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene",
+_SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "pixels", "approx_points",
                  # floor plan: the walls the report draws
                  "walls", "wall_covariance", "wall_index", "azimuths",
                  # sequential: what its residual plot needs (bayescal.sequential_residuals)
@@ -195,6 +195,20 @@ class CalibrationResult:
 
         return linear_reconstruction(self.params, self.covariance_identifiable,
                                      project(self.params, self.points), 0.0).covariance
+
+    def model_check(self, **kwargs):
+        """The predictive check of this fit: does the model fit its data?
+
+        See :func:`bayescal.checks.model.model_check` (keyword arguments pass through).
+
+        Returns
+        -------
+        ModelCheck
+            ``fits``, ``message``, ``p_values`` and per-point statistics.
+        """
+        from ..checks.model import model_check
+
+        return model_check(self, **kwargs)
 
     def reconstruct(self, pixels, *, sigma_px=None):
         """Triangulate new laser pixels with first-order uncertainty.

@@ -121,7 +121,9 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
                 "azimuths": sol.t, "point_covariance": _point_covariances(lik, sol) * scale,
                 "map": sol, "noise": noise, "theta": theta,
                 "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
-                "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1)},
+                "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1),
+                "pixels": lik.pixels.copy(),
+                "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px)},
         outlier_prob=None if em is None else em[1].copy())
     result.extras["check"] = sol.check
     if result.converged:

@@ -18,6 +18,7 @@ from scipy import stats
 
 from .._validation import as_pixels, as_points, resolve_rng
 from ..likelihood.priors import Prior
+from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import PARAM_NAMES, SensorParams, to_identifiable
 from ..stats.chains import ChainDiagnostics
 from .reconstruction import Reconstruction
@@ -275,22 +276,11 @@ class Posterior:
             "outlier_prob": self.outlier_prob})
 
     def to_inference_data(self):
-        """The samples as an ``arviz.InferenceData`` (needs the ``arviz`` extra).
+        """The samples for ArviZ (needs the ``arviz`` extra): see
+        :func:`bayescal.results.export.to_inference_data`."""
+        from .export import to_inference_data
 
-        Posterior group: the 8 paper parameters (one chain of S draws), the
-        points as ``points`` (draw, point, axis), and each inferred noise level.
-        """
-        try:
-            import arviz
-        except ImportError:
-            raise ImportError("to_inference_data needs arviz (pip install 'bayescal[arviz]')") \
-                from None
-        post = {n: self.param_samples[None, :, k] for k, n in enumerate(PARAM_NAMES)}
-        post["points"] = self.point_samples[None]
-        for n, v in self.noise_values().items():
-            post[n] = v[None]
-        return arviz.from_dict(posterior=post, dims={"points": ["point", "axis"]},
-                               coords={"axis": ["x", "y", "z"]})
+        return to_inference_data(self)
 
     def __repr__(self):
         return (f"<Posterior: {self.n_samples} samples, {self.point_samples.shape[1]} points, "
@@ -394,6 +384,13 @@ class Posterior:
             cols.append(self.noise_samples[idx, self.noise_names.index("kappa")])
         return np.stack(cols, axis=1) if cols else np.zeros((len(idx), 0))
 
+    def model_check(self, **kwargs):
+        """The posterior predictive check (:func:`bayescal.checks.model.model_check`):
+        a ``ModelCheck`` with ``fits``, ``message``, ``p_values``, per-point statistics."""
+        from ..checks.model import model_check
+
+        return model_check(self, **kwargs)
+
     # -- plots -------------------------------------------------------------------
     def corner(self, *, identifiable=False, truth=None, **kwargs):
         """Corner plot of the parameters (see :func:`bayescal.plotting.plot_corner`)."""
@@ -492,9 +489,5 @@ def load_posterior(path):
 
 def _load_plan(arrays):
     """The FloorPlan saved with a floor-plan posterior, or None."""
-    if not arrays:
-        return None
-    from ..scene.floorplan import FloorPlan
-
-    return FloorPlan.from_arrays(arrays)
+    return FloorPlan.from_arrays(arrays) if arrays else None
 

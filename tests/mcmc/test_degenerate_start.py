@@ -7,7 +7,8 @@ import pytest
 import bayescal as bc
 from bayescal.likelihood.points import LaserLikelihood
 from bayescal.mcmc.collapsed import sample_collapsed
-from bayescal.mcmc.steps import spd_covariance, tune_proposal
+from bayescal.mcmc.ensemble import spd_covariance
+from bayescal.mcmc.steps import tune_proposal
 
 
 def test_usable_covariance_is_returned_as_it_is():

@@ -209,13 +209,25 @@ def test_posterior_speaks_the_same_vocabulary():
                                                                            name))
 
 
-def test_to_inference_data():
-    pytest.importorskip("arviz")
-    import bayescal as bc
+@pytest.mark.parametrize("module", ["arviz", "arviz_base"])
+def test_to_inference_data(module):
+    """ArviZ 0.x (``from_dict(posterior=...)``) and the >= 1.0 interface of arviz_base
+    (``from_dict({"posterior": ...})``, what ArviZ 1.x re-exports), both in the test extra."""
+    import importlib
+    import warnings
 
+    from bayescal.results.export import to_inference_data
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        mod = importlib.import_module(module)
     ds = bc.simulate_room(range_mm=1000, n_points=20, sigma_px=0.5, approx_error=0.01, rng=1)
     post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.5,
                                sigma_scene=np.maximum(ds.sigma_scene, 1.0), rng=1, max_steps=400,
                                progress=False)
-    idata = post.to_inference_data()
+    idata = to_inference_data(post, module=mod)
     assert idata.posterior["h"].shape == (1, post.n_samples)
+    assert idata.posterior["points"].shape == (1, post.n_samples, 20, 3)
+    np.testing.assert_array_equal(np.asarray(idata.posterior["h"])[0], post.param_samples[:, 6])
+    if module == "arviz":
+        assert post.to_inference_data().posterior["h"].shape == (1, post.n_samples)
