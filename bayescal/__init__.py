@@ -10,6 +10,7 @@ See ``docs/`` for the model, conventions and the public API.
 
 from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
+from .errors import DegenerateInputError
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .likelihood.priors import Prior, default_prior
@@ -67,4 +68,5 @@ __all__ = [
     "NotConvergedError",
     "DuplicateRowsWarning",
     "NoiseCollapseError",
+    "DegenerateInputError",
 ]

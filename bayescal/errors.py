@@ -12,7 +12,8 @@ Exit codes of the ``bayescal`` command: :data:`EXIT_OK` (0) success,
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "Failure", "InputError", "NotConvergedWarning", "NotConvergedError",
+__all__ = ["UsageError", "Failure", "InputError", "DegenerateInputError", "NotConvergedWarning",
+           "NotConvergedError",
            "NoiseAtBoundWarning", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
@@ -46,6 +47,11 @@ class InputError(ValueError):
     def __init__(self, message, *, path=None, line=None, column=None):
         super().__init__(message)
         self.path, self.line, self.column = path, line, column
+
+
+class DegenerateInputError(ValueError):
+    """Well-formed input that cannot calibrate (too few points, one azimuth, no scene
+    information, points on the axis): bad input, exit code 2 from the command line."""
 
 
 class NotConvergedWarning(UserWarning):

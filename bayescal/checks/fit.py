@@ -1,8 +1,15 @@
-"""Checks on a finished fit: an inferred noise level that collapsed onto its bound.
+"""Checks on a finished fit: is it a fit one can trust?
 
-:func:`check_noise_levels` refuses an inferred noise level that ended at its
-prior bound (:class:`NoiseCollapseError`, naming the rows that drive it). See
-``docs/robustness.md``.
+* :func:`check_noise_levels` refuses an inferred noise level that ended at its
+  prior bound (:class:`NoiseCollapseError`, naming the rows that drive it);
+* :func:`fit_problems` lists what makes a least-squares solution untrustworthy
+  although the solver stopped: a parameter on the bound of its domain or far
+  outside its prior, or inferred noise levels that disagree with a robust
+  scale of the fit's own residuals (:func:`robust_noise_ratio`: bad rows
+  dragged the noise, and with it every sd). Such a fit is reported as not
+  converged, naming the rows that fit worst.
+
+See ``docs/robustness.md``.
 """
 
 from __future__ import annotations
@@ -11,7 +18,17 @@ import numpy as np
 
 from .rows import rows_text as _rows_text
 
-__all__ = ["NoiseCollapseError", "check_noise_levels"]
+__all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
+           "worst_rows", "DOMAIN", "BOUND_TOL", "PRIOR_SD_LIMIT", "NOISE_RATIO_LIMIT"]
+
+#: the domain of the parameters that have one (the model is undefined beyond it)
+DOMAIN = {"xi": (0.0, np.inf), "h": (0.0, np.inf), "beta": (0.0, np.pi / 2)}
+#: a parameter closer than this many prior sds to a bound of its domain sits on it
+BOUND_TOL = 1e-3
+#: a parameter further than this many prior sds from its prior mean is not credible
+PRIOR_SD_LIMIT = 10.0
+#: inferred noise and a robust scale of the residuals further apart than this disagree
+NOISE_RATIO_LIMIT = 1.5
 
 
 class NoiseCollapseError(ValueError):
@@ -77,3 +94,83 @@ def check_noise_levels(lik, psi, q, *, factor=2.0, n_rows=5):
             f"freedom, or a few rows dominate). Rows driving it most (0-based): "
             f"{_rows_text(rows)}. Check those rows, or give {name} explicitly",
             name=name, value=v, rows=rows)
+
+
+def robust_noise_ratio(m, dof):
+    """The factor by which the residuals' robust scale differs from the noise they were
+    whitened with: ``s`` such that ``median_i F_dof_i(m_i / s^2) = 1/2``.
+
+    For a correct noise level the per-point statistics ``m_i`` follow ``chi2(dof_i)``
+    and ``s = 1``; the median ignores up to half of the points, so a block of bad rows
+    that inflated an inferred noise level gives ``s`` well below 1.
+
+    Parameters
+    ----------
+    m : ndarray, shape (N,)
+        Per-point squared whitened residual norms (NaN/inf rows are ignored).
+    dof : int or ndarray, shape (N,)
+        Their degrees of freedom.
+
+    Returns
+    -------
+    float
+    """
+    from scipy import optimize, stats
+
+    m = np.asarray(m, dtype=float)
+    dof = np.broadcast_to(np.asarray(dof, dtype=float), m.shape)
+    ok = np.isfinite(m) & (dof > 0)
+    if ok.sum() < 3:
+        return 1.0
+    m, dof = m[ok], dof[ok]
+
+    def excess(log_s):
+        return np.median(stats.chi2.cdf(m * np.exp(-2.0 * log_s), dof)) - 0.5
+
+    lo, hi = -10.0, 10.0
+    if excess(lo) <= 0 or excess(hi) >= 0:
+        return float(np.exp(lo if excess(lo) <= 0 else hi))
+    return float(np.exp(optimize.brentq(excess, lo, hi, xtol=1e-6)))
+
+
+def worst_rows(m, dof, n=5):
+    """The ``n`` rows (0-based) whose residuals are least likely under the model."""
+    from scipy import stats
+
+    m = np.asarray(m, dtype=float)
+    tail = stats.chi2.logsf(np.where(np.isfinite(m), m, np.inf), np.asarray(dof, float))
+    return np.argsort(tail)[:n]
+
+
+def fit_problems(params, prior, *, noise_ratio=None):
+    """What makes a finished least-squares solution untrustworthy, in words.
+
+    Parameters
+    ----------
+    params : SensorParams
+        The solution.
+    prior : Prior
+        The priors it was solved with.
+    noise_ratio : float, optional
+        :func:`robust_noise_ratio` of its residuals when a noise level was inferred.
+
+    Returns
+    -------
+    list of str
+        Empty for a fit that passes (see the module docstring for the rules).
+    """
+    out = []
+    for name, dist in prior.dists.items():
+        v, sd = float(getattr(params, name)), float(dist.std())
+        lo, hi = DOMAIN.get(name, (-np.inf, np.inf))
+        if min(v - lo, hi - v) < BOUND_TOL * sd:
+            out.append(f"{name} = {v:.4g} sits on the bound of its domain ({lo:g}, {hi:.4g})")
+        elif abs(v - dist.mean()) > PRIOR_SD_LIMIT * sd:
+            out.append(f"{name} = {v:.4g} lies {abs(v - dist.mean()) / sd:.0f} prior sds "
+                       f"from its prior mean {dist.mean():.4g}")
+    if noise_ratio is not None and abs(np.log(noise_ratio)) > np.log(NOISE_RATIO_LIMIT):
+        out.append(f"the inferred noise is {1.0 / noise_ratio:.3g} times a robust scale of the "
+                   "fit's own residuals: a few bad rows, or errors the model does not describe "
+                   "(approximate points sharing a wall's error: give a floor plan), set it and "
+                   "every sd with it")
+    return out

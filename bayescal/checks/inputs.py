@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_pixels, as_points
+from ..errors import DegenerateInputError as _Degenerate
 from .rows import rows_text as _rows_text
 
 __all__ = ["DuplicateRowsWarning", "check_calibration_input", "MIN_POINTS",
@@ -64,22 +65,22 @@ def check_calibration_input(pixels, approx_points, *, sigma_scene, center):
     pix = _finite_rows(pixels, "pixels", as_pixels)
     apx = _finite_rows(approx_points, "approx_points", as_points)
     if pix.ndim != 2 or apx.ndim != 2 or len(pix) != len(apx):
-        raise ValueError(f"pixels must have shape (N, 2) and approx_points (N, 3) with the "
+        raise _Degenerate(f"pixels must have shape (N, 2) and approx_points (N, 3) with the "
                          f"same length N, got {pix.shape} and {apx.shape}")
     n = len(pix)
     if n < MIN_POINTS:
-        raise ValueError(f"need at least {MIN_POINTS} laser points, got N={n}: the seven "
+        raise _Degenerate(f"need at least {MIN_POINTS} laser points, got N={n}: the seven "
                          "identifiable parameters need points spread around the laser ring")
     on_axis = np.flatnonzero(np.hypot(apx[:, 0], apx[:, 1]) <= 0)
     if on_axis.size:
-        raise ValueError(f"approx_points rows {_rows_text(on_axis)} lie on the sensor axis "
+        raise _Degenerate(f"approx_points rows {_rows_text(on_axis)} lie on the sensor axis "
                          "(x = y = 0), outside the model's domain: a laser point is on the "
                          "cone, away from the axis")
     _check_azimuths(pix, center)
     if sigma_scene is not None:
         s = np.asarray(sigma_scene, dtype=float)
         if s.size and np.all(np.isinf(s)):
-            raise ValueError("sigma_scene is inf everywhere: the approximate points carry no "
+            raise _Degenerate("sigma_scene is inf everywhere: the approximate points carry no "
                              "information, and the pixels alone (two rows per point, two "
                              "unknowns per point) cannot calibrate; give finite sigma_scene "
                              "on at least x and y")
@@ -91,7 +92,7 @@ def _finite_rows(value, name, conv):
     arr = conv(value, name, allow_nan=True)
     if arr.ndim == 2 and not np.all(np.isfinite(arr)):
         bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
-        raise ValueError(f"{name} must contain only finite values; rows {_rows_text(bad)} "
+        raise _Degenerate(f"{name} must contain only finite values; rows {_rows_text(bad)} "
                          f"(0-based) hold NaN or inf ({bad.size} rows in all)")
     return conv(arr, name)
 
@@ -101,7 +102,7 @@ def _check_azimuths(pix, center):
     gaps = np.diff(np.append(az, az[0] + 2 * np.pi))
     coverage = np.degrees(2 * np.pi - np.max(gaps))
     if coverage < MIN_AZIMUTH_COVERAGE_DEG:
-        raise ValueError(f"pixels: all laser pixels lie within {coverage:.1f} degrees of "
+        raise _Degenerate(f"pixels: all laser pixels lie within {coverage:.1f} degrees of "
                          f"azimuth around the principal point ({center[0]:g}, {center[1]:g}) "
                          f"(nearly one azimuth); the cone and the principal point cannot be "
                          f"separated: use points spread around the laser ring (at least "

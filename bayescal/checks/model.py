@@ -33,6 +33,7 @@ import dataclasses
 
 import numpy as np
 
+from ..likelihood.scene_noise import scene_range
 from .datafile import OUTLIER_FLAG
 from .predictive import posterior_predictive_check
 from .residuals import (
@@ -65,7 +66,7 @@ def _residuals(result, info, pixels, approx_points=None):
         return None
     ssc = result.extras.get("sigma_scene")
     if ssc is None and noise.get("kappa") and approx_points is not None:
-        rho = np.hypot(approx_points[:, 0], approx_points[:, 1])
+        rho = scene_range(approx_points)
         ssc = np.repeat((noise["kappa"] * rho)[:, None], 3, axis=1)
     if ssc is None or approx_points is None:          # a floor plan, or unknown scene sds
         _, z = least_squares_residuals(result, pixels, spx, ssc)

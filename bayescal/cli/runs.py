@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import Failure
+from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 
 __all__ = ["run_simulate", "write_simulation", "run_calibrate", "calibrate_result",
@@ -167,33 +167,56 @@ def calibrate_result(job):
     input (:class:`~bayescal.errors.UsageError`, exit code 2).
     """
     from ..checks.datafile import library_messages
+
+    data = job.data
+    try:
+        with library_messages(data, reported=job.duplicate_lines) if data is not None \
+                else _nothing():
+            return _calibrate(job)
+    except DegenerateInputError as exc:         # input that cannot calibrate: exit 2
+        where = f"{data.pixel_table.path}: " if data is not None else ""
+        raise UsageError(f"{where}{exc}") from None
+
+
+def _calibrate(job):
+    """:func:`calibrate_result` inside the library-message context."""
+    from ..checks.fit import NoiseCollapseError
     from ..results.calibration import ConvergenceError
 
     data = job.data
-    with library_messages(data, reported=job.duplicate_lines) if data is not None \
-            else _nothing():
-        if job.method == "bayes":
-            return _bayes(job)
-        try:
-            result = _least_squares(job)
-        except ConvergenceError as exc:
-            if exc.result is None:
-                raise Failure(f"{job.method} calibration did not converge: {exc}") from None
-            return exc.result, f"{job.method} calibration did not converge: {exc}"
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-            from ..checks.fit import NoiseCollapseError
-
-            if isinstance(exc, NoiseCollapseError):
-                raise
-            raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing "
-                          "was written") from None
+    if job.method == "bayes":
+        return _bayes(job)
+    try:
+        result = _least_squares(job)
+    except ConvergenceError as exc:
+        if exc.result is None:
+            raise Failure(f"{job.method} calibration did not converge: {exc}") from None
+        return exc.result, (f"{job.method} calibration did not converge: "
+                            f"{_located(exc.result, data)}")
+    except (NoiseCollapseError, DegenerateInputError):
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        raise Failure(f"{job.method} calibration failed on these data ({exc}); nothing "
+                      "was written") from None
     if job.sigma_px is not None:
         result.extras["sigma_px"] = float(job.sigma_px)
     if job.sigma_scene is not None and job.method == "simultaneous":
         result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
     if not result.converged:
-        return result, f"{job.method} calibration did not converge: {result.message}"
+        return result, f"{job.method} calibration did not converge: {_located(result, data)}"
     return result, None
+
+
+def _located(result, data):
+    """A result's message with the rows it names (``extras["failed_rows"]``) as file lines."""
+    from ..checks.datafile import rows_to_lines
+
+    rows = result.extras.get("failed_rows")
+    if rows is None or data is None:
+        return result.message
+    lines = ", ".join(map(str, rows_to_lines(data, rows)))
+    text = str(result.message).split(" (rows fitting worst", 1)[0]
+    return f"{text} (input fitting worst: {data.pixel_table.path} lines {lines})"
 
 
 def _nothing():

@@ -19,7 +19,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..likelihood.floorplan import PlanLikelihood
-from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE, annealed_outlier_prob, em_update
+from ..likelihood.outliers import (
+    NOISE_TRIM,
+    OUTLIER_PRIOR,
+    OUTLIER_SCALE,
+    annealed_outlier_prob,
+    em_update,
+    trimmed_mean_square,
+)
 from ..likelihood.priors import Prior
 from ..results.floorplan import CHECK_P, N_RESTARTS, check_solution, make_result
 from ..scene.corners import candidate_walls, shallow_corners
@@ -257,7 +264,11 @@ def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
             # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
             # freedom per point: two pixel rows, one azimuth); maximum at mean S_i (EM:
             # the weighted S_i, each component's -log sigma summing to one per point)
-            sig = float(sig * np.sqrt(np.sum(sol.ne["R"] ** 2) / lik.n))
+            # the first round: a trimmed mean, so that a block of bad rows (a reflection
+            # streak) cannot inflate the noise it is judged by (docs/robustness.md)
+            sig = float(sig * np.sqrt(
+                trimmed_mean_square(np.sum(sol.ne["R0"] ** 2, axis=1), 1, 1 - NOISE_TRIM)
+                if k == 0 else np.sum(sol.ne["R"] ** 2) / lik.n))
         if lik.outliers and _e_step(lik, g, sig) < r_tol and k > 0 \
                 and abs(np.log(sig / old)) < 1e-4:
             break

@@ -21,9 +21,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks.fit import check_noise_levels
+from ..checks.fit import check_noise_levels, fit_problems, robust_noise_ratio, worst_rows
 from ..checks.inputs import check_calibration_input
-from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE, annealed_outlier_prob, em_update
+from ..likelihood.outliers import (
+    NOISE_TRIM,
+    OUTLIER_PRIOR,
+    OUTLIER_SCALE,
+    annealed_outlier_prob,
+    em_update,
+)
 from ..likelihood.points import LaserLikelihood
 from ..likelihood.priors import Prior
 from ..results.calibration import (
@@ -213,7 +219,9 @@ def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
         theta0, q0 = fit.sol.theta, fit.sol.q
         old = (fit.sig, fit.kappa)
         if lik.n_noise:
-            fit.sig, fit.kappa = _fit_noise(lik, fit)
+            # the first noise fit leaves out the worst-fitting points (a robust start the
+            # bad rows cannot drag: docs/robustness.md), later ones use the mixture
+            fit.sig, fit.kappa = _fit_noise(lik, fit, trim=NOISE_TRIM if k == 0 else 0.0)
         if not lik.outliers:
             continue
         r = lik.outlier_prob(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q,
@@ -242,13 +250,15 @@ def _initial_outlier_prob(lik, fit, theta0, q0):
     return np.zeros(lik.n) if r is None else r
 
 
-def _fit_noise(lik, fit):
+def _fit_noise(lik, fit, trim=0.0):
     """Maximise the collapsed likelihood (points integrated out) over the inferred noise.
 
     The joint maximum over points and noise degenerates (each point can absorb its two
     pixel rows, driving sigma_px to 0); integrating the points out keeps their degrees
     of freedom (the REML-like behaviour of the flat noise prior). With outliers the
-    likelihood is the mixture's at the current outlier fraction.
+    likelihood is the mixture's at the current outlier fraction. With ``trim`` > 0 only
+    the best ``1 - trim`` of the points' terms count (a least-trimmed likelihood): a
+    block of bad rows (a reflection streak) cannot inflate the noise it is judged by.
     """
     from scipy.optimize import minimize
 
@@ -261,9 +271,17 @@ def _fit_noise(lik, fit):
     if lik.infer_scene:
         x0.append(np.log(kappa))
 
+    n_keep = lik.n - int(trim * lik.n)
+
     def f(e):
         psi = np.concatenate([sol.theta, e, tail])
-        v = lik.laplace(psi, sol.q, n_iter=3)[0] + lik.log_prior_extra(psi[7:])
+        if n_keep < lik.n:
+            terms = lik._laplace_points(psi, sol.q, 3)[0]
+            terms = np.where(np.isfinite(terms), terms, -np.inf)
+            v = np.sum(np.sort(terms)[lik.n - n_keep:])
+        else:
+            v = lik.laplace(psi, sol.q, n_iter=3)[0]
+        v = v + lik.log_prior_extra(psi[7:])
         return -v if np.isfinite(v) else 1e300
 
     e = minimize(f, np.array(x0), method="Nelder-Mead",
@@ -326,10 +344,28 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
                 "theta": sol.theta, "identifiable_names": IDENTIFIABLE_NAMES,
                 "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
+    if result.converged:
+        _flag_fit_problems(result, lik, prior, np.concatenate([sol.theta, fit.extra(lik)]), sol.q)
     if not result.converged and raise_on_failure:
-        raise ConvergenceError(f"simultaneous calibration did not converge: {sol.message}",
+        raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _flag_fit_problems(result, lik, prior, psi, q):
+    """Mark a solution the solver accepted as not converged when it cannot be trusted
+    (:func:`~bayescal.checks.fit.fit_problems`), naming the rows that fit worst."""
+    m = lik.min_residual(psi, q)
+    dof = np.maximum(lik._n_rows - 2, 1)
+    ratio = robust_noise_ratio(m, dof) if lik.n_noise else None
+    problems = fit_problems(result.params, prior, noise_ratio=ratio)
+    if not problems:
+        return
+    rows = worst_rows(m, dof)
+    result.converged = False
+    result.message = "; ".join(problems) + " (rows fitting worst, 0-based: " + \
+        ", ".join(map(str, rows)) + ")"
+    result.extras["failed_rows"] = rows
 
 
 def _fitted_data(lik):

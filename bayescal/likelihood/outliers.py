@@ -20,8 +20,12 @@ from scipy.special import betaln, log_expit
 
 from .._validation import check_positive
 
-__all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "check_outlier_options", "log_prior_logit_frac",
-           "mix", "combine", "em_update", "annealed_outlier_prob"]
+__all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "NOISE_TRIM", "check_outlier_options",
+           "log_prior_logit_frac",
+           "mix", "combine", "em_update", "annealed_outlier_prob", "trimmed_mean_square"]
+
+#: fraction of the worst-fitting points the first inferred-noise estimate leaves out
+NOISE_TRIM = 0.2
 
 #: default noise inflation ``c`` of the outlier component
 OUTLIER_SCALE = 100.0
@@ -155,3 +159,31 @@ def annealed_outlier_prob(m, dof, x, log_ratio):
     T2 = max(1.0, float(np.median(m[ok] / chi2.median(dof[ok]))))
     r = combine(x, 0.0, log_ratio(np.where(ok, m, 0.0) / T2))[1]
     return np.where(ok, r, 1.0)
+
+
+def trimmed_mean_square(s, dof, keep):
+    """Robust mean of chi-square-like per-point statistics: the mean of the smallest
+    ``keep`` fraction, made consistent for ``chi2(dof)`` (so that an outlier-free sample
+    gives the plain mean's expectation, ``dof``, times the noise scale squared).
+
+    Parameters
+    ----------
+    s : ndarray, shape (N,)
+        Per-point sums of squared whitened residuals.
+    dof : int
+        Their degrees of freedom under the model.
+    keep : float
+        Fraction of the points kept, in (0, 1].
+
+    Returns
+    -------
+    float
+        The estimate of ``mean(s) / dof`` a bad block of rows cannot drag.
+    """
+    from scipy import stats
+
+    s = np.sort(np.asarray(s, dtype=float)[np.isfinite(s)])
+    n = max(1, int(round(keep * len(s))))
+    q = stats.chi2.ppf(keep, dof)
+    truncated_mean = dof * stats.chi2.cdf(q, dof + 2) / keep     # E[X | X < q] for chi2(dof)
+    return float(np.mean(s[:n]) / truncated_mean)

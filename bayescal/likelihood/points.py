@@ -29,6 +29,7 @@ from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_p
 from .point_algebra import grad_terms, point_terms
 from .point_blocks import clear_blocks, concat_blocks, sum_blocks
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
+from .scene_noise import scene_range
 
 __all__ = ["LaserLikelihood", "POINT_PRIORS", "NOISE_BOUNDS", "OUTLIER_SCALE",
            "OUTLIER_PRIOR", "draw_points"]
@@ -110,6 +111,7 @@ class LaserLikelihood:
             if np.any(self.rho <= 0):
                 raise ValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
                                  "scene error; give sigma_scene explicitly")
+            self.rho = scene_range(self.approx)
             self.w_scene = None
             self._scene_mask = np.ones((self.n, 3), bool)
         else:

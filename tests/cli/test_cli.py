@@ -739,3 +739,45 @@ def test_version_and_help_without_markup(tmp_path, capsys):
         assert "%%" not in text and "`" not in text, cmd
         if cmd == "study":
             assert "fig9" in text and "conditioning" in text
+
+
+@pytest.mark.parametrize("method", ["simultaneous", "bayes"])
+def test_input_that_cannot_calibrate_is_bad_input(sim, tmp_path, method):
+    """All scene sds inf: the pixels alone cannot calibrate. Exit 2, one line naming the
+    file and what to give, nothing written (was exit 1 for least squares, a traceback
+    for bayes)."""
+    lines = (sim / "laser.csv").read_text().splitlines()
+    data = [ln for ln in lines if not ln.startswith("#")]
+    head = data[0].split(",")
+    cols = [head.index(c) for c in ("sigma_x", "sigma_y", "sigma_z")]
+    rows = [ln.split(",") for ln in data[1:]]
+    for r in rows:
+        for c in cols:
+            r[c] = "inf"
+    (tmp_path / "allinf.csv").write_text("\n".join([data[0]] + [",".join(r) for r in rows]))
+    r = run("calibrate", "allinf.csv", "--method", method, "--out", "o", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert "allinf.csv" in r.stderr and "sigma_scene is inf everywhere" in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_messy_file_with_inferred_noise_is_not_called_converged(sim, tmp_path):
+    """Bad rows in a file without sigma columns (the noise inferred): the fit either
+    flags the rows or exits 1 naming them; never exit 0 with the noise dragged."""
+    lines = (sim / "laser.csv").read_text().splitlines()
+    data = [ln.split(",") for ln in lines if not ln.startswith("#")]
+    head = data[0]
+    keep = [i for i, h in enumerate(head) if not h.startswith("sigma")]
+    rows = [[r[i] for i in keep] for r in data]
+    h = rows[0]
+    rows[6][h.index("u")] = str(float(rows[6][h.index("u")]) + 25.0)     # file line 7
+    rows[21][h.index("x")] = str(float(rows[21][h.index("x")]) * 10.0)   # file line 22
+    (tmp_path / "messy.csv").write_text("\n".join(",".join(r) for r in rows))
+    r = run("calibrate", "messy.csv", "--method", "simultaneous", "--out", "o", cwd=tmp_path)
+    assert r.returncode in (0, 1, 2), r.stderr
+    assert "Traceback" not in r.stderr
+    if r.returncode == 0:
+        assert "lines 7, 22" in r.stdout or ("7" in r.stdout and "22" in r.stdout), r.stdout
+    else:
+        assert "line" in r.stderr, r.stderr

@@ -1,0 +1,310 @@
+"""Seeded corruptions of laser data, and the robustness invariant they are judged by.
+
+A user's file carries mistakes: a spurious laser pixel, a reflection streak, a unit slip
+in one approximate point, two rows swapped, a block pasted twice, a wall drawn in the
+wrong place. :func:`corrupt` makes each kind from a clean :class:`~bayescal.Dataset`
+(seeded, so a failing case can be replayed) and says which rows it touched;
+:func:`judge` checks what the package did with it against the invariant of
+``docs/robustness.md``:
+
+* **handled**: the fit converged, the uncorrupted points' mean 3D error is at most
+  ``ERROR_RATIO`` times the clean fit's, at least ``MIN_FLAGGED`` of the corrupted rows
+  and at most ``MAX_FALSE_FLAGGED`` of the good ones are flagged (outlier probability
+  > 0.5, or named by a warning);
+* **refused**: a bayescal error (a failed fit, a not-converged result, bad input) that
+  names rows;
+* anything else fails: a converged result that misses the corruption, a parameter on a
+  bound called converged, or a numpy/scipy exception.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+
+from .._validation import resolve_rng
+from ..checks.inputs import DuplicateRowsWarning
+from ..errors import InputError, NotConvergedError
+from ..fit.simultaneous import calibrate_simultaneous
+from ..mcmc.sampling import sample_posterior
+from ..scene.floorplan import FloorPlan
+
+__all__ = ["KINDS", "PLAN_KINDS", "Corruption", "corrupt", "judge", "run_case", "ERROR_RATIO",
+           "MIN_FLAGGED", "MAX_FALSE_FLAGGED"]
+
+#: corruptions of laser data (pixels or approximate points)
+KINDS = ("gross_pixel", "streak", "random_gross", "metres", "sign_flip", "times_ten",
+         "xy_swap", "rows_swapped", "duplicated_block")
+#: corruptions of a floor plan
+PLAN_KINDS = ("wall_off",)
+#: the invariant (module docstring)
+ERROR_RATIO = 1.25
+MIN_FLAGGED = 0.9
+MAX_FALSE_FLAGGED = 0.01
+
+
+@dataclasses.dataclass
+class Corruption:
+    """Corrupted data and where the corruption is.
+
+    Attributes
+    ----------
+    kind : str
+    pixels : ndarray, shape (M, 2)
+        px (``M = N`` except for ``duplicated_block``, which appends rows).
+    approx_points : ndarray, shape (M, 3)
+        mm.
+    rows : ndarray of int
+        The corrupted rows (0-based, of the corrupted arrays).
+    plan : FloorPlan or None
+        The corrupted plan (``wall_off``).
+    """
+
+    kind: str
+    pixels: np.ndarray
+    approx_points: np.ndarray
+    rows: np.ndarray
+    plan: object = None
+
+
+def _far_rows(pts, k, rng, min_rho=0.0):
+    rho = np.hypot(pts[:, 0], pts[:, 1])
+    cand = np.flatnonzero(rho > min_rho)
+    return np.sort(rng.choice(cand, size=k, replace=False))
+
+
+def _radial(pixels, center):
+    d = pixels - center
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _pixel_kinds(kind, ds, pix, rng, count):
+    c = np.array([ds.params.u0, ds.params.v0])
+    if kind == "gross_pixel":
+        rows = _far_rows(ds.approx_points, count, rng)
+        ang = rng.uniform(0, 2 * np.pi, count)
+        pix[rows] += 25.0 * np.stack([np.cos(ang), np.sin(ang)], -1)
+    elif kind == "streak":                    # consecutive in azimuth, 3 px outward
+        az = np.argsort(np.arctan2(pix[:, 1] - c[1], pix[:, 0] - c[0]))
+        start = int(rng.integers(len(pix)))
+        rows = np.sort(az[(start + np.arange(max(count, 1) * 15)) % len(pix)])
+        pix[rows] += 3.0 * _radial(pix[rows], c)
+    else:                                     # random_gross: 5 % of the pixels, 5-30 px
+        rows = _far_rows(ds.approx_points, max(1, int(round(0.05 * len(pix)))), rng)
+        ang = rng.uniform(0, 2 * np.pi, len(rows))
+        pix[rows] += rng.uniform(5, 30, len(rows))[:, None] * np.stack(
+            [np.cos(ang), np.sin(ang)], -1)
+    return rows
+
+
+def _point_kinds(kind, ds, apx, rng, count):
+    rng_mm = float(np.median(np.hypot(apx[:, 0], apx[:, 1])))
+    if kind == "rows_swapped":
+        rows = _far_rows(apx, 2 * count, rng)
+        a, b = rows[:count], rows[count:]
+        swap = np.hypot(*(apx[a, :2] - apx[b, :2]).T) > 0.3 * rng_mm
+        a, b = a[swap], b[swap]
+        apx[np.r_[a, b]] = apx[np.r_[b, a]]
+        return np.sort(np.r_[a, b])
+    # a coordinate must move far: pick points with a large |x| (|x - y| for xy_swap)
+    big = np.abs(apx[:, 0] - apx[:, 1]) if kind == "xy_swap" else np.abs(apx[:, 0])
+    rows = np.sort(rng.choice(np.flatnonzero(big > 0.4 * rng_mm), size=count, replace=False))
+    if kind == "metres":
+        apx[rows] /= 1000.0
+    elif kind == "sign_flip":
+        apx[rows, 0] *= -1.0
+    elif kind == "times_ten":
+        apx[rows, 0] *= 10.0
+    else:
+        apx[rows, :2] = apx[rows, ::-1][:, 1:]
+    return rows
+
+
+def _shift_wall(walls, k, factor):
+    """Walls (W, 2, 2) of a closed polygon with wall ``k`` moved to ``factor`` times its
+    distance from the axis; its two corners follow (intersections with the neighbours)."""
+    def line(seg):
+        d = seg[1] - seg[0]
+        n = np.array([d[1], -d[0]]) / np.linalg.norm(d)
+        return n, float(n @ seg[0])
+
+    W = len(walls)
+    n_k, d_k = line(walls[k])
+    d_k *= factor
+    for j, end in (((k - 1) % W, 0), ((k + 1) % W, 1)):
+        n_j, d_j = line(walls[j])
+        corner = np.linalg.solve(np.array([n_k, n_j]), np.array([d_k, d_j]))
+        walls[k, end] = corner
+        walls[j, 1 - end] = corner
+    return walls
+
+
+def corrupt(ds, kind, *, count=1, rng=None):
+    """A corrupted copy of a simulated room's laser data (or of its floor plan).
+
+    Parameters
+    ----------
+    ds : Dataset
+        From :func:`~bayescal.simulate_room`.
+    kind : str
+        One of :data:`KINDS` or :data:`PLAN_KINDS`.
+    count : int, optional
+        How many (rows, streaks of 15 pixels, swapped pairs, duplicated blocks of 10
+        rows); ``random_gross`` always corrupts 5 % of the pixels.
+    rng : numpy.random.Generator, int or None
+
+    Returns
+    -------
+    Corruption
+
+    Raises
+    ------
+    ValueError
+        An unknown ``kind``, or ``wall_off`` on a room without a floor plan.
+    """
+    rng = resolve_rng(rng)
+    pix, apx = ds.pixels.copy(), ds.approx_points.copy()
+    if kind in ("gross_pixel", "streak", "random_gross"):
+        rows = _pixel_kinds(kind, ds, pix, rng, count)
+    elif kind in ("metres", "sign_flip", "times_ten", "xy_swap", "rows_swapped"):
+        rows = _point_kinds(kind, ds, apx, rng, count)
+    elif kind == "duplicated_block":
+        start = int(rng.integers(len(pix) - 10 * count))
+        block = np.arange(start, start + 10 * count)
+        rows = len(pix) + np.arange(len(block))
+        pix, apx = np.concatenate([pix, pix[block]]), np.concatenate([apx, apx[block]])
+    elif kind == "wall_off":
+        if ds.floor_plan is None:
+            raise ValueError("kind='wall_off' needs a room with a floor plan")
+        plan = ds.floor_plan
+        walls = _shift_wall(np.array(plan.walls, float), int(rng.integers(plan.n_walls)), 1.3)
+        bad = FloorPlan(walls, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
+        return Corruption(kind, pix, apx, np.array([], int), bad)
+    else:
+        raise ValueError(f"kind must be one of {KINDS + PLAN_KINDS}, got {kind!r}")
+    return Corruption(kind, pix, apx, np.asarray(rows, int))
+
+
+def _good_error(points, truth, good):
+    return float(np.mean(np.linalg.norm(points[good] - truth[good], axis=1)))
+
+
+def judge(outcome, corruption, truth_points, clean_error, *, warned_rows=()):
+    """Check what a fit did with corrupted data against the invariant.
+
+    Parameters
+    ----------
+    outcome : result or Exception
+        What the fit returned (a CalibrationResult or Posterior) or raised.
+    corruption : Corruption
+    truth_points : ndarray, shape (N, 3)
+        The true points of the clean rows (mm; duplicated rows are not judged).
+    clean_error : float
+        The clean fit's mean 3D error, mm.
+    warned_rows : array_like of int, optional
+        Rows a warning named (duplicate rows): they count as flagged.
+
+    Returns
+    -------
+    dict
+        ``verdict`` (``"handled"``, ``"refused"`` or ``"FAILED"``), ``why`` (str),
+        ``error_ratio``, ``flagged`` (fraction of corrupted rows flagged),
+        ``false_flagged`` (fraction of good rows flagged).
+    """
+    out = {"verdict": "FAILED", "why": "", "error_ratio": np.nan, "flagged": np.nan,
+           "false_flagged": np.nan}
+    if isinstance(outcome, BaseException):
+        tb = outcome.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        ours = tb is not None and "bayescal" in tb.tb_frame.f_code.co_filename
+        named = any(w in str(outcome) for w in ("row", "line", "wall"))
+        if isinstance(outcome, (NotConvergedError, InputError)) or (ours and named):
+            out.update(verdict="refused", why=f"{type(outcome).__name__}: {outcome}"[:200])
+        else:
+            out["why"] = f"{type(outcome).__name__} raised outside bayescal: {outcome}"[:200]
+        return out
+    n = len(truth_points)
+    good = np.setdiff1d(np.arange(n), corruption.rows)
+    if not getattr(outcome, "converged", True):
+        msg = str(getattr(outcome, "message", ""))
+        named = any(w in msg for w in ("row", "line", "wall"))
+        out.update(verdict="refused" if named else "FAILED", why=msg[:200])
+        return out
+    op = getattr(outcome, "outlier_prob", None)
+    flags = np.zeros(len(corruption.pixels), bool) if op is None else np.asarray(op) > 0.5
+    flags[np.asarray(warned_rows, int)] = True
+    bad = corruption.rows[corruption.rows < len(flags)]
+    out["flagged"] = float(np.mean(flags[bad])) if len(bad) else 1.0
+    out["false_flagged"] = float(np.mean(flags[good]))
+    out["error_ratio"] = _good_error(np.asarray(outcome.points)[:n], truth_points, good) \
+        / clean_error
+    ok = (out["error_ratio"] <= ERROR_RATIO and out["flagged"] >= MIN_FLAGGED
+          and out["false_flagged"] <= MAX_FALSE_FLAGGED)
+    out["verdict"] = "handled" if ok else "FAILED"
+    out["why"] = (f"error x{out['error_ratio']:.2f}, {out['flagged']:.0%} of corrupted and "
+                  f"{out['false_flagged']:.1%} of good rows flagged")
+    return out
+
+
+def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, seed=7,
+             clean=None, **fit_kw):
+    """Corrupt ``ds``, fit it, and judge the outcome; returns :func:`judge`'s dict plus
+    ``kind``, ``method`` and ``noise``.
+
+    Parameters
+    ----------
+    ds : Dataset
+    kind : str
+        One of :data:`KINDS` or :data:`PLAN_KINDS`.
+    method : {"lsq", "posterior", "plan"}
+        :func:`~bayescal.calibrate_simultaneous` on the approximate points, or
+        :func:`~bayescal.sample_posterior` on them, or the least squares on ``plan``.
+    noise : {"given", "inferred"}
+        The pixel (and scene) noise given as simulated, or inferred.
+    plan : FloorPlan, optional
+        For ``method="plan"`` (default ``ds.floor_plan``).
+    count : int, optional
+    seed : int, optional
+        Seed of the corruption (and of the posterior's sampler).
+    clean : float, optional
+        The clean fit's mean 3D error (mm); computed when not given.
+    **fit_kw
+        Passed to the fit (e.g. ``min_ess``, ``progress`` for the posterior).
+
+    Returns
+    -------
+    dict
+    """
+
+    plan = ds.floor_plan if plan is None else plan
+    spx = ds.sigma_px if noise == "given" else None
+    if method == "posterior":
+        fit_kw.setdefault("rng", seed)
+
+    def fit(pixels, approx, the_plan, scene):
+        if method == "plan":
+            return calibrate_simultaneous(pixels, the_plan, sigma_px=spx, **fit_kw)
+        f = sample_posterior if method == "posterior" else calibrate_simultaneous
+        return f(pixels, approx, sigma_px=spx, sigma_scene=scene, **fit_kw)
+
+    scene = ds.sigma_scene if noise == "given" else None
+    if clean is None:
+        res = fit(ds.pixels, ds.approx_points, plan, scene)
+        clean = float(np.mean(np.linalg.norm(res.points - ds.points, axis=1)))
+    c = corrupt(ds, kind, count=count, rng=seed)
+    if scene is not None and len(c.pixels) > len(scene):         # duplicated rows
+        scene = np.concatenate([scene, scene[:len(c.pixels) - len(scene)]])
+    warned = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            out = fit(c.pixels, c.approx_points, c.plan or plan, scene)
+        except Exception as exc:  # noqa: BLE001 (judged: a bayescal error or a failure)
+            out = exc
+    if any(issubclass(w.category, DuplicateRowsWarning) for w in caught):
+        warned = c.rows
+    verdict = judge(out, c, ds.points, clean, warned_rows=warned)
+    return {"kind": kind, "method": method, "noise": noise, **verdict}

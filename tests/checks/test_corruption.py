@@ -1,0 +1,94 @@
+"""The corruption harness: seeded corruptions of laser data and floor plans, each judged by
+the robustness invariant (bayescal.validation.corruption, docs/robustness.md): the fit
+either handles it (good points' error <= 1.25x the clean fit's, >= 90 % of the corrupted
+rows flagged, <= 1 % of the good ones) or refuses with a bayescal error naming rows; never
+a converged result that missed it, never a numpy/scipy exception.
+
+The default run covers every kind once (2500 mm room, noise inferred: the command line's
+default, and the case that used to fail); ``-m slow`` runs the whole grid and prints the
+table of docs/robustness.md (``pytest -s``)."""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+from bayescal.validation.corruption import KINDS, PLAN_KINDS, corrupt, run_case
+
+
+def _room(range_mm, model="gaussian"):
+    ds = bc.simulate_room(range_mm=range_mm, n_points=300, n_walls=6, sigma_px=0.2,
+                          approx_error=0.02, approx_model=model, rng=1)
+    if model == "wall":       # the plan as measured: wall errors of the same size
+        plan = bc.FloorPlan(ds.floor_plan.walls, distance_sd=0.02 * ds.floor_plan.distances,
+                            angle_sd=0.01)
+        ds = dataclasses.replace(ds, floor_plan=plan)
+    return ds
+
+
+@pytest.fixture(scope="module")
+def room():
+    return _room(2500.0)
+
+
+@pytest.fixture(scope="module")
+def plan_room():
+    return _room(2500.0, "wall")
+
+
+def test_corruptions_are_seeded_and_say_where_they_are(room):
+    a, b = corrupt(room, "streak", rng=3), corrupt(room, "streak", rng=3)
+    np.testing.assert_array_equal(a.pixels, b.pixels)
+    moved = np.flatnonzero(np.any(a.pixels != room.pixels, axis=1))
+    np.testing.assert_array_equal(moved, a.rows)
+    assert len(a.rows) == 15
+    with pytest.raises(ValueError, match="kind must be one of"):
+        corrupt(room, "typo")
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_least_squares_with_inferred_noise(room, kind):
+    out = run_case(room, kind, method="lsq", noise="inferred")
+    assert out["verdict"] in ("handled", "refused"), out
+
+
+@pytest.mark.parametrize("kind", ["streak", "random_gross"] + list(PLAN_KINDS))
+def test_floor_plan_with_inferred_noise(plan_room, kind):
+    out = run_case(plan_room, kind, method="plan", noise="inferred")
+    assert out["verdict"] in ("handled", "refused"), out
+
+
+def test_posterior_with_inferred_noise_and_a_streak(room):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.NotConvergedWarning)
+        out = run_case(room, "streak", method="posterior", noise="inferred", progress=False,
+                       min_ess=300)
+    assert out["verdict"] in ("handled", "refused"), out
+
+
+@pytest.mark.slow
+def test_the_whole_grid():
+    """Every kind x three rooms x noise given or inferred x {least squares, posterior,
+    floor plan}; prints the table of docs/robustness.md and fails on any FAILED row."""
+    rows = []
+    for range_mm in (1000.0, 2500.0, 5000.0):
+        pts, plan = _room(range_mm), _room(range_mm, "wall")
+        for noise in ("given", "inferred"):
+            for method, ds, kinds in (("lsq", pts, KINDS), ("posterior", pts, KINDS),
+                                      ("plan", plan, ("gross_pixel", "streak",
+                                                      "random_gross") + PLAN_KINDS)):
+                kw = {"progress": False, "min_ess": 300} if method == "posterior" else {}
+                for kind in kinds:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        out = run_case(ds, kind, method=method, noise=noise, **kw)
+                    rows.append((range_mm, out))
+    print("\n| room | method | noise | kind | verdict | what happened |\n|---|---|---|---|---|---|")
+    for range_mm, o in rows:
+        print(f"| {range_mm:.0f} mm | {o['method']} | {o['noise']} | {o['kind']} | "
+              f"{o['verdict']} | {o['why'][:90]} |")
+    failed = [(r, o) for r, o in rows if o["verdict"] == "FAILED"]
+    print(f"\n{len(rows) - len(failed)} of {len(rows)} cases handled or refused")
+    assert not failed, failed
