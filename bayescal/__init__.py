@@ -24,7 +24,12 @@ from .results.calibration import (
 )
 from .results.metrics import reconstruction_error, reconstruction_errors
 from .results.posterior import Posterior, load_posterior
-from .results.reconstruction import Reconstruction
+from .results.reconstruction import (
+    LinearReconstruction,
+    Reconstruction,
+    Reconstructor,
+    reconstruct_frames,
+)
 from .scene.floorplan import FloorPlan
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
@@ -60,6 +65,9 @@ __all__ = [
     "sample_posterior",
     "Posterior",
     "Reconstruction",
+    "LinearReconstruction",
+    "Reconstructor",
+    "reconstruct_frames",
     "load_posterior",
     "load_result",
     "Prior",

@@ -26,6 +26,7 @@ LAZY_METHOD_IMPORTS = {
     ("bayescal.results.posterior", "bayescal.plotting"),
     ("bayescal.results.calibration", "bayescal.checks.model"),
     ("bayescal.results.posterior", "bayescal.checks.model"),
+    ("bayescal.results.reconstruction", "bayescal.io.pointcloud"),
 }
 #: the command line is a client of the public API: it may import the package itself
 #: (``import bayescal as bc``, so that it calls exactly what a user calls)

@@ -278,7 +278,7 @@ def _load_run(run):
 class ReconstructJob:
     """Reconstruct new laser pixels with a finished calibration run."""
 
-    pixels: np.ndarray
+    frames: tuple          # ((path, pixels (N, 2), pixel covariances (N, 2, 2) or None), ...)
     result: object
     sigma_px: float | None
     seed: int
@@ -286,20 +286,35 @@ class ReconstructJob:
     force: bool
     run: pathlib.Path
 
+    @property
+    def pixels(self):
+        """The first frame's pixels (N, 2), px."""
+        return self.frames[0][1]
+
     @classmethod
     def build(cls, **options):
-        """Validated job (:data:`~bayescal.cli.options.RECONSTRUCT_OPTIONS`)."""
-        from ..io.data import check_pixels_in_image, load_pixels
+        """Validated job (:data:`~bayescal.cli.options.RECONSTRUCT_OPTIONS`); every frame
+        is read and checked before anything is written."""
+        from ..io.data import check_pixels_in_image, load_pixels, pixel_covariance
 
         o = _opts(op.RECONSTRUCT_OPTIONS, options)
         run = pathlib.Path(o["run"])
         result, _ = _load_run(run)
-        pixels, table = load_pixels(o["pixels"])
-        check_pixels_in_image(pixels, table, image_size=o["image_size"],
-                              margin=o["image_margin"])
-        check_out(o["out"], force=o["force"], inputs=[o["pixels"], run])
-        return cls(pixels=pixels, result=result, sigma_px=o["sigma_px"], seed=o["seed"],
-                   out=pathlib.Path(o["out"]), force=o["force"], run=run)
+        paths = o["pixels"] if isinstance(o["pixels"], (list, tuple)) else [o["pixels"]]
+        stems = [pathlib.Path(p).stem for p in paths]
+        if len(set(stems)) < len(stems):
+            raise UsageError("frames: two pixel files share a name "
+                             f"({', '.join(sorted({s for s in stems if stems.count(s) > 1}))})"
+                             "; each frame's point cloud is named after its file")
+        frames = []
+        for path in paths:
+            pixels, table = load_pixels(path)
+            check_pixels_in_image(pixels, table, image_size=o["image_size"],
+                                  margin=o["image_margin"])
+            frames.append((pathlib.Path(path), pixels, pixel_covariance(table)))
+        check_out(o["out"], force=o["force"], inputs=[*paths, run])
+        return cls(frames=tuple(frames), result=result, sigma_px=o["sigma_px"],
+                   seed=o["seed"], out=pathlib.Path(o["out"]), force=o["force"], run=run)
 
 
 @dataclass(frozen=True)

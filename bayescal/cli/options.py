@@ -301,7 +301,9 @@ CALIBRATE_OPTIONS = (
 )
 
 RECONSTRUCT_OPTIONS = (
-    Opt(("pixels",), {"type": input_file, "help": "CSV or NPZ with columns u, v (px)"}),
+    Opt(("pixels",), {"type": input_file, "nargs": "+", "metavar": "PIXELS",
+                      "help": "one CSV or NPZ per frame, with columns u, v (px) and "
+                              "optionally cov_uu, cov_uv, cov_vv (px^2, per-pixel noise)"}),
     Opt(("--run",), {"type": input_folder, "required": True,
                      "help": "output folder of 'bayescal calibrate'"}),
     Opt(("--sigma-px",), {"type": nonneg_float, "help": "least-squares runs: pixel noise of "

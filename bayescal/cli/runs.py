@@ -280,29 +280,60 @@ def run_calibrate(job, folder):
 
 
 def run_reconstruct(job, folder):
-    """Triangulate new pixels with error bars; writes ``reconstruction.csv`` and a plot."""
-    import sys
+    """Triangulate new pixels with error bars, frame by frame.
 
+    One frame: ``reconstruction.csv``, ``reconstruction.ply`` and a plot; several:
+    one ``<frame>.ply`` each and ``frames.csv`` (a line per frame), with a progress
+    bar. The calibration is prepared once (:meth:`reconstructor`)."""
+    import sys
+    import time
+
+    from ..io.data import _write_csv
     from ..plotting import plot_reconstruction_ellipses, savefig
 
     out, result = folder.path, job.result
-    if hasattr(result, "param_samples"):
-        mean, cov = result.reconstruct(job.pixels, rng=job.seed)
+    recon = result.reconstructor(rng=job.seed) if hasattr(result, "param_samples") \
+        else result.reconstructor(sigma_px=job.sigma_px)
+    rows, single = [], len(job.frames) == 1
+    frames = job.frames
+    if not single:
+        from tqdm.auto import tqdm
+
+        frames = tqdm(frames, desc="frames", unit="frame", file=sys.stderr)
+    for path, pixels, pixel_cov in frames:
+        t0 = time.perf_counter()
+        rec = recon(pixels, pixel_cov=pixel_cov)
+        seconds = time.perf_counter() - t0
+        name = "reconstruction" if single else path.stem
+        folder.add(rec.save(out / f"{name}.ply"))
+        sd = np.sqrt(np.maximum(np.diagonal(rec.covariance, axis1=1, axis2=2), 0))
+        rows.append((str(path), len(pixels), int((~rec.valid).sum()),
+                     float(np.nanmedian(np.linalg.norm(sd, axis=1))), seconds, f"{name}.ply"))
+    if single:
+        mean, cov = rec
+        folder.add(points_csv(out / "reconstruction.csv", mean, cov,
+                              first={"u": pixels[:, 0], "v": pixels[:, 1]}),
+                   savefig(plot_reconstruction_ellipses(mean, cov), out / "reconstruction.png"))
     else:
-        mean, cov = result.reconstruct(job.pixels, sigma_px=job.sigma_px)
-    path = points_csv(out / "reconstruction.csv", mean, cov,
-                      first={"u": job.pixels[:, 0], "v": job.pixels[:, 1]})
-    folder.add(path, savefig(plot_reconstruction_ellipses(mean, cov), out / "reconstruction.png"))
-    miss = int((~np.isfinite(mean).all(axis=1)).sum())
+        cols = list(zip(*rows, strict=True))
+        _write_csv(out / "frames.csv", {
+            "frame": np.arange(len(rows)), "points": np.array(cols[1]),
+            "missed": np.array(cols[2]), "median_sd_mm": np.array(cols[3]),
+            "seconds": np.array(cols[4])},
+            header_comment="\n".join(f"frame {k}: {r[0]} -> {r[5]}" for k, r in enumerate(rows)))
+        folder.add(out / "frames.csv")
+    miss = sum(r[2] for r in rows)
     if miss:
         print(f"bayescal: warning: {miss} pixel(s) have rays that miss the laser cone; their "
               "rows are nan", file=sys.stderr)
-    sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0))
-    method = getattr(result, "method", "bayes") if not hasattr(result, "param_samples") \
-        else "bayes"
-    print(f"reconstructed {len(job.pixels)} pixels with the {method} calibration of "
-          f"{job.run}; median sd {np.nanmedian(np.linalg.norm(sd, axis=1)):.3g} mm")
-    print(f"wrote {job.out / 'reconstruction.csv'}, {job.out / 'reconstruction.png'}")
+    method = "bayes" if hasattr(result, "param_samples") else getattr(result, "method", "")
+    print(f"reconstructed {sum(r[1] for r in rows)} pixels in {len(rows)} frame(s) with the "
+          f"{method} calibration of {job.run}; median sd "
+          f"{np.nanmedian([r[3] for r in rows]):.3g} mm")
+    written = (["reconstruction.csv", "reconstruction.ply", "reconstruction.png"] if single
+               else [r[5] for r in rows[:3]] + (["..."] if len(rows) > 3 else [])
+               + ["frames.csv"])
+    print("wrote " + ", ".join(str(job.out / w) if w != "..." else w for w in written))
 
 
 def run_report(job, folder):

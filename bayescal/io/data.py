@@ -46,27 +46,11 @@ from ..errors import InputError
 from .jsonfile import read_json, to_jsonable, write_json
 from .tables import LASER_COLUMNS, SIGMA_COLUMNS, Table, read_table
 
-__all__ = [
-    "InputError",
-    "to_jsonable",
-    "Table",
-    "LaserData",
-    "read_table",
-    "load_laser_data",
-    "load_pixels",
-    "load_calibration_data",
-    "check_pixels_in_image",
-    "check_projection_domain",
-    "write_laser_csv",
-    "write_laser_npz",
-    "write_calibration_npz",
-    "write_json",
-    "read_json",
-    "parse_image_size",
-    "duplicate_rows",
-    "LASER_COLUMNS",
-    "SIGMA_COLUMNS",
-]
+__all__ = ["InputError", "to_jsonable", "Table", "LaserData", "read_table", "load_laser_data",
+           "load_pixels", "pixel_covariance", "load_calibration_data", "check_pixels_in_image",
+           "check_projection_domain", "write_laser_csv", "write_laser_npz",
+           "write_calibration_npz", "write_json", "read_json", "parse_image_size",
+           "duplicate_rows", "LASER_COLUMNS", "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS"]
 
 @dataclass
 class LaserData:
@@ -136,6 +120,10 @@ def _sigma_px(tables):
     return value
 
 
+#: optional per-pixel covariance columns (px^2), as an image extractor writes them
+PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
+
+
 def load_pixels(path):
     """Read laser pixels ``u, v`` from a CSV or NPZ file.
 
@@ -145,8 +133,34 @@ def load_pixels(path):
     table : Table
     """
     t = read_table(path, required=("u", "v"), optional=("x", "y", "z") + SIGMA_COLUMNS
-                   + ("sigma_px",))
+                   + ("sigma_px",) + PIXEL_COV_COLUMNS + ("snr", "flagged"))
     return np.column_stack([t.columns["u"], t.columns["v"]]), t
+
+
+def pixel_covariance(table):
+    """The per-pixel covariances of a pixel table, shape (N, 2, 2) px^2, or None.
+
+    Raises
+    ------
+    InputError
+        Only some of ``cov_uu, cov_uv, cov_vv`` given, or a covariance that is not
+        positive definite (naming the line).
+    """
+    have = [c for c in PIXEL_COV_COLUMNS if c in table.columns]
+    if not have:
+        return None
+    if len(have) < 3:
+        raise InputError(f"{table.path}: per-pixel covariances need all of "
+                         f"{', '.join(PIXEL_COV_COLUMNS)}; found only {', '.join(have)}",
+                         path=str(table.path))
+    uu, uv, vv = (np.asarray(table.columns[c], float) for c in PIXEL_COV_COLUMNS)
+    bad = np.flatnonzero(~((uu > 0) & (vv > 0) & (uu * vv - uv * uv > 0)))
+    if bad.size:
+        line = int(table.lines[bad[0]])
+        raise InputError(f"{table.path}: line {line}: cov_uu, cov_uv, cov_vv = "
+                         f"{uu[bad[0]]:g}, {uv[bad[0]]:g}, {vv[bad[0]]:g} is not a positive "
+                         "definite covariance (px^2)", path=str(table.path), line=line)
+    return np.stack([np.stack([uu, uv], -1), np.stack([uv, vv], -1)], -2)
 
 
 def load_laser_data(path, points_path=None, *, need_points=True):

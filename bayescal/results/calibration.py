@@ -233,8 +233,21 @@ class CalibrationResult:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         if not (np.isfinite(sigma_px) and sigma_px >= 0):
             raise ValueError(f"sigma_px must be a finite number >= 0 px, got {sigma_px!r}")
-        return linear_reconstruction(self.params, self.covariance_identifiable, pixels,
-                                     float(sigma_px))
+        rec = linear_reconstruction(self.params, self.covariance_identifiable, pixels,
+                                    float(sigma_px))
+        rec.pixels = pixels
+        return rec
+
+    def reconstructor(self, *, sigma_px=None, level=0.9):
+        """This fit prepared for fast reconstruction of frames of new pixels (first order
+        in the identifiable parameters, per-pixel covariances accepted): a
+        :class:`~bayescal.results.reconstruction.Reconstructor`."""
+        from .reconstruction import Reconstructor
+
+        if sigma_px is None:
+            sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
+        return Reconstructor(self.params.to_identifiable(), self.covariance_identifiable,
+                             float(sigma_px), level=level)
 
     @property
     def std(self) -> np.ndarray:

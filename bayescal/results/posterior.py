@@ -16,7 +16,6 @@ import pathlib
 import numpy as np
 from scipy import stats
 
-from .._validation import as_pixels, as_points, resolve_rng
 from ..likelihood.priors import Prior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import PARAM_NAMES, SensorParams, to_identifiable
@@ -288,7 +287,7 @@ class Posterior:
 
     # -- reconstruction ----------------------------------------------------------
     def reconstruct(self, pixels, *, approx_points=None, sigma_scene=None, level=0.9,
-                    max_samples=1000, rng=None):
+                    max_samples=1000, rng=None, pixel_cov=None, method="auto"):
         """Reconstruct new laser pixels as 3D points with uncertainty.
 
         Parameters
@@ -298,66 +297,55 @@ class Posterior:
         approx_points : array_like, shape (M, 3), optional
             Approximate positions of the new points; with them each point's
             posterior combines the pixel and the scene prior (the same
-            per-point model as the calibration).
+            per-point model as the calibration; always sampled).
         sigma_scene : float or array_like broadcastable to (M, 3), optional
             Their standard deviation, mm (required with ``approx_points``
             unless the scene noise was inferred).
         level : float, optional
             Credible level of the intervals.
         max_samples : int, optional
-            Posterior samples used (evenly thinned).
+            Posterior samples used by the sampled path (evenly thinned).
         rng : numpy.random.Generator, int or None
+            For the sampled path.
+        pixel_cov : array_like, shape (M, 2, 2) or (2, 2), optional
+            Pixel noise covariance of the new pixels, px^2 (default: the posterior's
+            pixel noise).
+        method : {"auto", "linear", "sampled"}, optional
+            ``"auto"`` (default): the fast path of :meth:`reconstructor` (first order in
+            the identifiable parameters, checked against sampling once), falling back
+            to sampling where its check failed or a pixel lies off the calibrated
+            ring; ``"sampled"``: every posterior draw triangulates the pixel perturbed
+            by its pixel noise (Monte Carlo).
 
         Returns
         -------
-        Reconstruction
-            Unpacks as ``mean (M, 3), covariance (M, 3, 3)``; also
-            ``intervals (M, 3, 2)`` and the draws. Parameter uncertainty and
-            pixel noise are both included (Monte Carlo: each posterior sample
-            triangulates the pixel perturbed by its pixel noise).
+        Reconstruction or LinearReconstruction
+            Unpacks as ``mean (M, 3)`` mm, ``covariance (M, 3, 3)`` mm^2; also
+            ``intervals (M, 3, 2)`` and ``valid (M,)``; the sampled path keeps its
+            draws in ``samples``. Parameter uncertainty and pixel noise are both
+            included.
         """
-        from ..likelihood.points import LaserLikelihood
-        from ..likelihood.points import draw_points as _draw_points
-        from ..sensor.laser import cone_point_theta, triangulate_theta
+        from .reconstruction import reconstruct_posterior
 
-        rng = resolve_rng(rng)
-        pixels = as_pixels(pixels)
-        single = pixels.ndim == 1
-        pixels = np.atleast_2d(pixels)
-        if not 0 < level < 1:
-            raise ValueError(f"level must lie in (0, 1), got {level!r}")
-        idx = np.linspace(0, self.n_samples - 1, min(int(max_samples), self.n_samples))
-        idx = idx.round().astype(int)
-        theta = self.theta_samples[idx]
-        sig = self._sigma_px_samples()[idx]
-        if approx_points is None:
-            noisy = pixels + sig[:, None, None] * rng.standard_normal((len(idx),) + pixels.shape)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                samples, _ = triangulate_theta(theta[:, None, :], noisy)
-        else:
-            approx = np.atleast_2d(as_points(approx_points, "approx_points"))
-            if approx.shape != (len(pixels), 3):
-                raise ValueError(f"approx_points must have shape (M, 3) = {(len(pixels), 3)}, "
-                                 f"got {approx.shape}")
-            if sigma_scene is None and "kappa" not in self.noise_names:
-                raise ValueError("sigma_scene is required with approx_points (the scene noise "
-                                 "was given, not inferred, at calibration)")
-            lik = LaserLikelihood(pixels, approx,
-                                  sigma_px=None if "sigma_px" in self.noise_names
-                                  else self.sigma_px,
-                                  sigma_scene=sigma_scene)
-            ref = {n: float(np.exp(np.mean(self.noise_samples[:, k])))
-                   for k, n in enumerate(self.noise_names) if n in ("sigma_px", "kappa")}
-            lik.set_reference_noise(**ref)
-            psi = np.concatenate([theta, self._noise_for(lik, idx)], axis=1)
-            q0 = lik.initial_q(theta.mean(axis=0))
-            q, _ = _draw_points(lik, psi, q0, rng, n_mh=2, n_iter=6)
-            samples = cone_point_theta(theta[:, None, :], q)
-        rec = Reconstruction(samples, level)
-        if single:
-            rec.mean, rec.covariance = rec.mean[0], rec.covariance[0]
-            rec.intervals, rec.valid = rec.intervals[0], rec.valid[0]
-        return rec
+        return reconstruct_posterior(self, pixels, approx_points=approx_points,
+                                     sigma_scene=sigma_scene, level=level,
+                                     max_samples=max_samples, rng=rng, pixel_cov=pixel_cov,
+                                     method=method)
+
+    def reconstructor(self, *, level=0.9, rng=0):
+        """The posterior prepared for fast reconstruction (cached): see
+        :class:`~bayescal.results.reconstruction.Reconstructor`."""
+        from .reconstruction import Reconstructor
+
+        key = (level, rng if isinstance(rng, (int, type(None))) else id(rng))
+        if getattr(self, "_reconstructor", (None, None))[0] != key:
+            th = self.theta_samples
+            self._reconstructor = (key, Reconstructor(
+                th.mean(axis=0), np.cov(th, rowvar=False),
+                float(np.mean(self._sigma_px_samples())), theta_samples=th,
+                sigma_samples=self._sigma_px_samples(), probe_pixels=self.pixels,
+                level=level, rng=rng))
+        return self._reconstructor[1]
 
     def noise_values(self):
         """Samples of each inferred global on its natural scale, ``{name: (S,)}``.

@@ -781,3 +781,34 @@ def test_messy_file_with_inferred_noise_is_not_called_converged(sim, tmp_path):
         assert "lines 7, 22" in r.stdout or ("7" in r.stdout and "22" in r.stdout), r.stdout
     else:
         assert "line" in r.stderr, r.stderr
+
+
+def test_reconstruct_frames_to_point_clouds(sim, seq_run, tmp_path):
+    """Several frames: one PLY each (read back by meshio) and a summary line per frame;
+    per-pixel covariance columns are used."""
+    meshio = pytest.importorskip("meshio")
+    lines = [ln for ln in (sim / "laser.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    head = lines[0].split(",")
+    iu, iv = head.index("u"), head.index("v")
+    rows = [ln.split(",") for ln in lines[1:]]
+    for k, (a, b) in enumerate(((0, 20), (20, 45))):
+        txt = ["u,v,cov_uu,cov_uv,cov_vv"] + [f"{r[iu]},{r[iv]},{0.04 * (k + 1)},0,0.04"
+                                              for r in rows[a:b]]
+        (tmp_path / f"f{k}.csv").write_text("\n".join(txt) + "\n")
+    r = run("reconstruct", "f0.csv", "f1.csv", "--run", seq_run[0], "--out", "rec",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "rec"
+    m0, m1 = meshio.read(out / "f0.ply"), meshio.read(out / "f1.ply")
+    assert m0.points.shape == (20, 3) and m1.points.shape == (25, 3)
+    assert np.all(np.isfinite(m0.point_data["cov_xx"]))
+    body = [ln for ln in (out / "frames.csv").read_text().splitlines()
+            if not ln.startswith("#")]
+    assert body[0].split(",")[:2] == ["frame", "points"]
+    assert [float(ln.split(",")[1]) for ln in body[1:]] == [20, 25]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("u,v,cov_uu\n400,380,0.1\n")
+    r = run("reconstruct", "f0.csv", "bad.csv", "--run", seq_run[0], "--out", "rec2",
+            cwd=tmp_path)
+    assert r.returncode == 2 and "cov_uv" in r.stderr and not (tmp_path / "rec2").exists()
