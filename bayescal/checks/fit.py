@@ -19,7 +19,8 @@ import numpy as np
 from .rows import rows_text as _rows_text
 
 __all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
-           "worst_rows", "DOMAIN", "BOUND_TOL", "PRIOR_SD_LIMIT", "NOISE_RATIO_LIMIT"]
+           "worst_rows", "flag_untrusted", "DOMAIN", "BOUND_TOL", "PRIOR_SD_LIMIT",
+           "NOISE_RATIO_LIMIT"]
 
 #: the domain of the parameters that have one (the model is undefined beyond it)
 DOMAIN = {"xi": (0.0, np.inf), "h": (0.0, np.inf), "beta": (0.0, np.pi / 2)}
@@ -174,3 +175,31 @@ def fit_problems(params, prior, *, noise_ratio=None):
                    "(approximate points sharing a wall's error: give a floor plan), set it and "
                    "every sd with it")
     return out
+
+
+def flag_untrusted(result, prior, m, dof, *, noise_inferred):
+    """Mark a least-squares result the solver accepted as not converged when
+    :func:`fit_problems` finds it untrustworthy; the message names the rows fitting
+    worst (also in ``result.extras["failed_rows"]``).
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Changed in place.
+    prior : Prior
+    m : ndarray, shape (N,)
+        Per-point squared whitened residual norms at the solution.
+    dof : int or ndarray, shape (N,)
+        Their degrees of freedom.
+    noise_inferred : bool
+        Whether a noise level was inferred (then its robust scale is checked).
+    """
+    ratio = robust_noise_ratio(m, dof) if noise_inferred else None
+    problems = fit_problems(result.params, prior, noise_ratio=ratio)
+    if not problems:
+        return
+    rows = worst_rows(m, dof)
+    result.converged = False
+    result.message = "; ".join(problems) + " (rows fitting worst, 0-based: " + \
+        ", ".join(map(str, rows)) + ")"
+    result.extras["failed_rows"] = rows

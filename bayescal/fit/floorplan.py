@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..checks.fit import flag_untrusted
 from ..likelihood.floorplan import PlanLikelihood
 from ..likelihood.outliers import (
-    NOISE_TRIM,
     OUTLIER_PRIOR,
     OUTLIER_SCALE,
     annealed_outlier_prob,
@@ -28,6 +28,7 @@ from ..likelihood.outliers import (
     trimmed_mean_square,
 )
 from ..likelihood.priors import Prior
+from ..results.calibration import ConvergenceError
 from ..results.floorplan import CHECK_P, N_RESTARTS, check_solution, make_result
 from ..scene.corners import candidate_walls, shallow_corners
 from ..scene.floorplan import FloorPlan, corner_azimuths, wrap_angle
@@ -264,11 +265,9 @@ def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
             # collapsed likelihood per point: -S_i / (2 sigma^2) - log sigma (one degree of
             # freedom per point: two pixel rows, one azimuth); maximum at mean S_i (EM:
             # the weighted S_i, each component's -log sigma summing to one per point)
-            # the first round: a trimmed mean, so that a block of bad rows (a reflection
-            # streak) cannot inflate the noise it is judged by (docs/robustness.md)
-            sig = float(sig * np.sqrt(
-                trimmed_mean_square(np.sum(sol.ne["R0"] ** 2, axis=1), 1, 1 - NOISE_TRIM)
-                if k == 0 else np.sum(sol.ne["R"] ** 2) / lik.n))
+            # first round trimmed: a streak of bad rows cannot inflate it (robustness.md)
+            sig = float(sig * np.sqrt(trimmed_mean_square(np.sum(sol.ne["R0"] ** 2, axis=1), 1)
+                                      if k == 0 else np.sum(sol.ne["R"] ** 2) / lik.n))
         if lik.outliers and _e_step(lik, g, sig) < r_tol and k > 0 \
                 and abs(np.log(sig / old)) < 1e-4:
             break
@@ -421,18 +420,23 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     Returns
     -------
     CalibrationResult
-        ``params``, ``points`` (N, 3), ``covariance`` (8, 8); ``extras``:
-        ``walls`` (W, 2) the estimated ``(d_k, a_k)``, ``wall_covariance``
-        (2W, 2W) in the order ``d_0, a_0, d_1, ...``, ``wall_index`` (N,),
-        ``azimuths`` (N,), ``point_covariance`` (N, 3, 3), ``map``, ``noise``
-        (with ``outlier_frac``, the MAP of ``w``, under the mixture), ``em_rounds``;
-        ``outlier_prob`` (N,) each point's outlier probability at the MAP (None
-        with ``outliers=False``).
+        ``params``, ``points`` (N, 3), ``covariance`` (8, 8); ``extras``: ``walls`` (W, 2)
+        the estimated ``(d_k, a_k)``, ``wall_covariance`` (2W, 2W) in the order ``d_0, a_0,
+        d_1, ...``, ``wall_index`` (N,), ``azimuths`` (N,), ``point_covariance`` (N, 3, 3),
+        ``map``, ``noise`` (with ``outlier_frac``, the MAP of ``w``), ``em_rounds``;
+        ``outlier_prob`` (N,) at the MAP (None with ``outliers=False``).
     """
-    lik, _, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
-                       max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
-                       outlier_prior=outlier_prior)
-    return make_result(lik, sol, absolute_sigma, raise_on_failure)
+    lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
+                           max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
+                           outlier_prior=outlier_prior)
+    result = make_result(lik, sol, absolute_sigma, False)
+    if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
+        flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
+                       noise_inferred=lik.infer_px)
+    if not result.converged and raise_on_failure:
+        raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
+                               result=result)
+    return result
 
 
 def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,

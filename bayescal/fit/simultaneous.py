@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks.fit import check_noise_levels, fit_problems, robust_noise_ratio, worst_rows
+from ..checks.fit import check_noise_levels, flag_untrusted
 from ..checks.inputs import check_calibration_input
 from ..likelihood.outliers import (
     NOISE_TRIM,
@@ -345,27 +345,13 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
                 "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
     if result.converged:
-        _flag_fit_problems(result, lik, prior, np.concatenate([sol.theta, fit.extra(lik)]), sol.q)
+        m = lik.min_residual(np.concatenate([sol.theta, fit.extra(lik)]), sol.q)
+        flag_untrusted(result, prior, m, np.maximum(lik._n_rows - 2, 1),
+                       noise_inferred=bool(lik.n_noise))
     if not result.converged and raise_on_failure:
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return result
-
-
-def _flag_fit_problems(result, lik, prior, psi, q):
-    """Mark a solution the solver accepted as not converged when it cannot be trusted
-    (:func:`~bayescal.checks.fit.fit_problems`), naming the rows that fit worst."""
-    m = lik.min_residual(psi, q)
-    dof = np.maximum(lik._n_rows - 2, 1)
-    ratio = robust_noise_ratio(m, dof) if lik.n_noise else None
-    problems = fit_problems(result.params, prior, noise_ratio=ratio)
-    if not problems:
-        return
-    rows = worst_rows(m, dof)
-    result.converged = False
-    result.message = "; ".join(problems) + " (rows fitting worst, 0-based: " + \
-        ", ".join(map(str, rows)) + ")"
-    result.extras["failed_rows"] = rows
 
 
 def _fitted_data(lik):

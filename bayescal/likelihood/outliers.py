@@ -161,7 +161,7 @@ def annealed_outlier_prob(m, dof, x, log_ratio):
     return np.where(ok, r, 1.0)
 
 
-def trimmed_mean_square(s, dof, keep):
+def trimmed_mean_square(s, dof, keep=1.0 - NOISE_TRIM):
     """Robust mean of chi-square-like per-point statistics: the mean of the smallest
     ``keep`` fraction, made consistent for ``chi2(dof)`` (so that an outlier-free sample
     gives the plain mean's expectation, ``dof``, times the noise scale squared).
@@ -172,8 +172,8 @@ def trimmed_mean_square(s, dof, keep):
         Per-point sums of squared whitened residuals.
     dof : int
         Their degrees of freedom under the model.
-    keep : float
-        Fraction of the points kept, in (0, 1].
+    keep : float, optional
+        Fraction of the points kept, in (0, 1] (default ``1 - NOISE_TRIM``).
 
     Returns
     -------
