@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out
 
-.PHONY: demo test test-slow bench lint clean
+.PHONY: demo test test-slow bench docs lint clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,13 +34,22 @@ $(VENV)/.installed-slow: pyproject.toml | $(BIN)/python
 test-slow: $(VENV)/.installed-slow
 	$(BIN)/python -m pytest -q -m slow
 
+$(VENV)/.installed-docs: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[docs]"
+	touch $@ $(VENV)/.installed
+
+## docs: the HTML site into docs/_build/html (API reference, tutorials run at build time);
+## warnings are errors. BAYESCAL_DOCS_QUICK=1 runs the tutorials on fewer points (CI).
+docs: $(VENV)/.installed-docs
+	MPLBACKEND=agg $(BIN)/python -m sphinx -b html -W --keep-going docs docs/_build/html
+
 ## bench: timings written to docs/performance.md (~25 min; the sampler rows include N = 20 000)
 bench: $(VENV)/.installed
 	$(BIN)/python studies/benchmark.py --large-n 20000 --out docs/performance.md
 
 lint: $(VENV)/.installed-test
 	$(BIN)/python -m pip install --quiet ruff
-	$(BIN)/ruff check bayescal tests studies
+	$(BIN)/ruff check bayescal tests studies docs/conf.py docs/tutorials
 
 clean:
-	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info
+	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info docs/_build docs/api docs/auto_tutorials
