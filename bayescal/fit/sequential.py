@@ -271,6 +271,14 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
         mismatched lengths, too few grid points (fewer than 7) or laser pixels
         (fewer than 3), a plane with laser pixels but fewer than 3 grid points,
         a dataset without calibration data, bad options.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=100, sigma_px=0.2, rng=0)
+    >>> res = bc.calibrate_sequential(ds)
+    >>> res.method, res.covariance().shape
+    ('sequential', (8, 8))
     """
     calib, room_pixels = _unpack(dataset)
     grid_w, grid_pix, grid_plane, laser_pix, laser_plane = _check_calibration(calib)

@@ -67,6 +67,13 @@ def default_prior(nominal=None):
     -------
     dict
         ``{name: scipy.stats frozen distribution}`` for the eight names.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> prior = bc.default_prior()
+    >>> float(prior["h"].mean()), float(prior["h"].std())       # design value +- tolerance
+    (200.0, 20.0)
     """
     nominal = SensorParams.paper() if nominal is None else nominal
     out = {}

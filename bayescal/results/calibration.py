@@ -406,6 +406,18 @@ def load_result(path):
     ValueError
         Not a bayescal result file, a newer format version, or damaged
         (the message names the file and what is wrong).
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.01,
+    ...                       approx_model="gaussian", rng=0)
+    >>> res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+    ...                                 sigma_scene=ds.sigma_scene)
+    >>> path = res.save(pathlib.Path(tempfile.mkdtemp()) / "result.json")
+    >>> bool((bc.load_result(path).params.to_array() == res.params.to_array()).all())
+    True
     """
     path = pathlib.Path(path)
     if not path.is_file():

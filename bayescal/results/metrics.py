@@ -39,6 +39,13 @@ def reconstruction_errors(reconstructed, true):
     -------
     ndarray, shape (...)
         Distances in mm; NaN where ``reconstructed`` has a NaN coordinate.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> bc.reconstruction_errors(np.zeros((2, 3)), np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 1.0]]))
+    array([5., 1.])
     """
     rec = as_points(reconstructed, "reconstructed", allow_nan=True)
     tru = as_points(true, "true")

@@ -152,6 +152,12 @@ def room_walls(range_mm, n_walls=7):
     Returns
     -------
     ndarray, shape (n_walls, 2, 2)
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> bc.room_walls(1000).shape                # 7 walls, each two (x, y) end points
+    (7, 2, 2)
     """
     range_mm = check_positive(range_mm, "range_mm")
     if int(n_walls) != n_walls or n_walls < 3:

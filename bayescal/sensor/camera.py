@@ -198,6 +198,14 @@ def backproject(params, pixels, *, return_valid=False):
         Unit vectors from the mirror focus (NaN where no ray exists).
     valid : ndarray of bool, shape (...)
         Only with ``return_valid=True``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> ray = bc.backproject(bc.SensorParams.paper(), np.array([400.0, 300.0]))
+    >>> np.round(ray, 12) + 0.0      # the principal point sees straight down
+    array([ 0.,  0., -1.])
     """
     theta = to_identifiable(as_param_array(params))
     pixels = as_pixels(pixels)

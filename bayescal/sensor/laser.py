@@ -86,6 +86,14 @@ def cone_point(params, xy):
     -------
     ndarray, shape (..., 3)
         ``(x, y, rho / tan(beta) - h)`` in mm.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> p = bc.SensorParams.paper()              # h = 200 mm, beta = 60 deg
+    >>> np.round(bc.cone_point(p, np.array([1000.0, 0.0])), 3).tolist()
+    [1000.0, 0.0, 377.35]
     """
     theta = to_identifiable(as_param_array(params))
     xy = as_finite_array(xy, "xy", last_dim=2)
@@ -160,6 +168,15 @@ def triangulate(params, pixels, *, return_valid=False):
         above the cone's asymptotic direction, or has no back-projection).
     valid : ndarray of bool, shape (...)
         Only with ``return_valid=True``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> p = bc.SensorParams.paper()
+    >>> P = bc.cone_point(p, np.array([[1000.0, 0.0]]))      # a laser point 1 m away
+    >>> np.allclose(bc.triangulate(p, bc.project(p, P)), P)
+    True
     """
     theta = to_identifiable(as_param_array(params))
     pixels = as_pixels(pixels)
@@ -185,6 +202,15 @@ def triangulate_plane(params, pixels, plane, *, return_valid=False):
         NaN where the ray is parallel to the plane or meets it behind the focus.
     valid : ndarray of bool, shape (...)
         Only with ``return_valid=True``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> p = bc.SensorParams.paper()
+    >>> pix = bc.project(p, np.array([1000.0, 0.0, -150.0]))
+    >>> np.round(bc.triangulate_plane(p, pix, [0.0, 0.0, 1.0, 150.0]), 6) + 0.0   # z = -150
+    array([1000.,    0., -150.])
     """
     theta = to_identifiable(as_param_array(params))
     pixels = as_pixels(pixels)
@@ -214,6 +240,15 @@ def pixel_azimuth(params, pixels):
     ndarray, shape (...)
         Azimuth in radians, ``atan2(y_I, x_I)`` with ``x_I = (u - u0) / alpha_u``
         and ``y_I = (v - v0) / alpha_v``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> p = bc.SensorParams.paper()
+    >>> pix = bc.project(p, bc.cone_point(p, np.array([0.0, 1000.0])))
+    >>> float(np.round(np.degrees(bc.pixel_azimuth(p, pix)), 6))
+    90.0
     """
     a = as_param_array(params)
     pixels = as_pixels(pixels)
