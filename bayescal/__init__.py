@@ -35,6 +35,7 @@ from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .sensor.pose import LaserPose
 
 __version__ = "0.1.0"
 
@@ -42,6 +43,7 @@ __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
     "SensorParams",
+    "LaserPose",
     "project",
     "backproject",
     "triangulate",

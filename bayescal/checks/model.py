@@ -35,6 +35,7 @@ import numpy as np
 
 from ..likelihood.scene_noise import scene_range
 from .datafile import OUTLIER_FLAG
+from .misalignment import harmonic_statistic
 from .predictive import posterior_predictive_check
 from .residuals import (
     least_squares_residuals,
@@ -125,7 +126,7 @@ def predictive_check(result, info, pixels, *, approx_points=None, rng=0, alpha=0
 #: ``f(result, check) -> dict or None`` with ``name``, ``p_value``, ``observed``,
 #: ``expected`` and ``message`` (what a failure means and what to do), where ``check`` is
 #: the :func:`predictive_check` output (its ``azimuth`` and per-point statistics)
-STATISTICS = []
+STATISTICS = [harmonic_statistic]
 
 
 @dataclasses.dataclass

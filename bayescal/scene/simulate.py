@@ -20,6 +20,7 @@ import numpy as np
 from .._validation import check_positive, resolve_rng
 from ..sensor.camera import project_theta
 from ..sensor.parameters import SensorParams, to_identifiable
+from ..sensor.pose import LaserPose
 from .floorplan import FloorPlan
 
 __all__ = ["Dataset", "CalibrationData", "simulate_room", "room_walls", "rotation_matrix",
@@ -118,6 +119,8 @@ class Dataset:
         ``"wall"`` model: the very errors of the approximate points, the same
         rough measurement), each orientation off by one draw of
         ``plan_angle_sd``; those sds are the plan's.
+    laser_pose : LaserPose
+        The true pose of the laser cone (aligned unless ``tilt``/``offset`` were given).
     """
 
     params: SensorParams
@@ -135,6 +138,7 @@ class Dataset:
     approx_model: str
     nominal: SensorParams = field(default_factory=SensorParams.paper)
     floor_plan: FloorPlan | None = None
+    laser_pose: LaserPose | None = None
 
     @property
     def n_points(self):
@@ -189,6 +193,20 @@ def _cone_z(rho, params):
     return rho / np.tan(params.beta) - params.h
 
 
+def _tilted_points(params, pose, n_points, walls):
+    """Points where a tilted, offset cone's generatrices meet the walls: (N, 3), wall index.
+
+    The generatrices are taken at ``n_points`` azimuths about the cone's own axis; each
+    meets the first wall its horizontal direction reaches from the apex."""
+    phi = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
+    g = pose.generatrix(params.beta, phi)                               # (N, 3)
+    gh = np.hypot(g[:, 0], g[:, 1])
+    origin = np.array([pose.offset_x, pose.offset_y])
+    t, wall_idx = _ray_polygon_distance(np.arctan2(g[:, 1], g[:, 0]), walls - origin)
+    return np.array([pose.offset_x, pose.offset_y, -params.h]) + (t / gh)[:, None] * g, \
+        wall_idx
+
+
 def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
                  n_grid, n_laser, rng):
     """Four planes x = +-d, y = +-d (in W) with grid points and the laser curve."""
@@ -240,7 +258,7 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
 def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.5,
                   approx_error=0.0, sigma_3d=0.0, approx_model="fig9", nominal=None,
                   calib_distance_mm=None, n_grid=7, n_calib_laser=80, plan_angle_sd=0.01,
-                  rng=None):
+                  tilt=(0.0, 0.0), offset=(0.0, 0.0), rng=None):
     """Simulate the paper's room: laser points, their pixels and approximate 3D points.
 
     Parameters
@@ -286,6 +304,15 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         sd (rad) of each wall's orientation in ``ds.floor_plan`` (default 0.01
         rad, about half a degree: a wall's direction read off a drawing or
         squared with a tape).
+    tilt : (float, float), optional
+        ``(tilt_x, tilt_y)`` of the laser cone's axis, rad (default aligned; convention in
+        :class:`~bayescal.LaserPose`).
+    offset : (float, float), optional
+        ``(offset_x, offset_y)`` of its apex, mm. With either non-zero the laser points
+        are where the misaligned cone meets the walls, while the approximate points of the
+        ``fig9`` and ``wall`` models still take z from the nominal *aligned* cone, as a
+        user who assumes the paper's model would; the sequential method's calibration
+        patterns stay aligned.
     rng : numpy.random.Generator, int or None
         Randomness; the same seed gives the same dataset.
 
@@ -322,10 +349,19 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     rng_plan = np.random.default_rng(ss.spawn(1)[0])    # 4th child: earlier streams unchanged
 
     walls = room_walls(range_mm, n_walls)
-    az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
-    rho, wall_idx = _ray_polygon_distance(az, walls)
-    xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
-    points = np.column_stack([xy, _cone_z(rho, params)])
+    tilt, offset = (np.asarray(v, dtype=float).ravel() for v in (tilt, offset))
+    if tilt.shape != (2,) or offset.shape != (2,):
+        raise ValueError(f"tilt and offset must be pairs (x, y), got {tilt.tolist()} and "
+                         f"{offset.tolist()}")
+    pose = LaserPose(*map(float, tilt), *map(float, offset), h=params.h)
+    if pose.aligned:
+        az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
+        rho, wall_idx = _ray_polygon_distance(az, walls)
+        xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
+        points = np.column_stack([xy, _cone_z(rho, params)])
+    else:                       # a misaligned cone: the same walls, other points on them
+        points, wall_idx = _tilted_points(params, pose, n_points, walls)
+        xy = points[:, :2]
     theta = to_identifiable(params.to_array())
     pixels_true, _ = project_theta(theta, points)
     pixels = pixels_true + rng_pix.normal(0.0, sigma_px, pixels_true.shape)
@@ -359,7 +395,7 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
                    approx_points=approx, sigma_scene=sigma_scene, walls=walls, calibration=calib,
                    sigma_px=sigma_px, sigma_3d=sigma_3d, approx_error=approx_error,
                    range_mm=range_mm, approx_model=approx_model, nominal=nominal,
-                   floor_plan=floor_plan)
+                   floor_plan=floor_plan, laser_pose=pose)
 
 
 def _rough_plan(walls, approx_error, angle_sd, rng, rel_eps=None):
