@@ -193,6 +193,24 @@ def _cone_z(rho, params):
     return rho / np.tan(params.beta) - params.h
 
 
+def _pose(tilt, offset, params):
+    tilt, offset = (np.asarray(v, dtype=float).ravel() for v in (tilt, offset))
+    if tilt.shape != (2,) or offset.shape != (2,):
+        raise ValueError(f"tilt and offset must be pairs (x, y), got {tilt.tolist()} and "
+                         f"{offset.tolist()}")
+    return LaserPose(*map(float, tilt), *map(float, offset), h=params.h)
+
+
+def _laser_points(params, pose, n_points, walls):
+    """The true laser points (N, 3) on the walls and each one's wall index."""
+    if not pose.aligned:        # a misaligned cone: the same walls, other points on them
+        return _tilted_points(params, pose, n_points, walls)
+    az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
+    rho, wall_idx = _ray_polygon_distance(az, walls)
+    xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
+    return np.column_stack([xy, _cone_z(rho, params)]), wall_idx
+
+
 def _tilted_points(params, pose, n_points, walls):
     """Points where a tilted, offset cone's generatrices meet the walls: (N, 3), wall index.
 
@@ -349,19 +367,9 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     rng_plan = np.random.default_rng(ss.spawn(1)[0])    # 4th child: earlier streams unchanged
 
     walls = room_walls(range_mm, n_walls)
-    tilt, offset = (np.asarray(v, dtype=float).ravel() for v in (tilt, offset))
-    if tilt.shape != (2,) or offset.shape != (2,):
-        raise ValueError(f"tilt and offset must be pairs (x, y), got {tilt.tolist()} and "
-                         f"{offset.tolist()}")
-    pose = LaserPose(*map(float, tilt), *map(float, offset), h=params.h)
-    if pose.aligned:
-        az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
-        rho, wall_idx = _ray_polygon_distance(az, walls)
-        xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
-        points = np.column_stack([xy, _cone_z(rho, params)])
-    else:                       # a misaligned cone: the same walls, other points on them
-        points, wall_idx = _tilted_points(params, pose, n_points, walls)
-        xy = points[:, :2]
+    pose = _pose(tilt, offset, params)
+    points, wall_idx = _laser_points(params, pose, n_points, walls)
+    xy = points[:, :2]
     theta = to_identifiable(params.to_array())
     pixels_true, _ = project_theta(theta, points)
     pixels = pixels_true + rng_pix.normal(0.0, sigma_px, pixels_true.shape)

@@ -140,8 +140,12 @@ def test_reconstruct_shapes(post, new_room):
     mean, cov = many                                       # unpacks as mean, covariance
     assert mean.shape == (5, 3) and cov.shape == (5, 3, 3)
     assert many.intervals.shape == (5, 3, 2) and many.valid.all()
-    np.testing.assert_allclose(mean[0], one.mean, rtol=0, atol=5 * np.sqrt(np.diag(
-        one.covariance)).max() / np.sqrt(len(one.samples)))
+    np.testing.assert_allclose(mean[0], one.mean, rtol=1e-12)      # the fast path: exact
+    one_s = post.reconstruct(new_room.pixels[0], rng=0, method="sampled")
+    many_s = post.reconstruct(new_room.pixels[:5], rng=0, method="sampled")
+    assert one_s.intervals.shape == (3, 2) and many_s.samples.shape[1:] == (5, 3)
+    np.testing.assert_allclose(many_s.mean[0], one_s.mean, rtol=0, atol=5 * np.sqrt(np.diag(
+        one_s.covariance)).max() / np.sqrt(len(one_s.samples)))
     with pytest.raises(ValueError, match=r"approx_points must have shape \(M, 3\) = \(5, 3\)"):
         post.reconstruct(new_room.pixels[:5], approx_points=new_room.approx_points[:4],
                          sigma_scene=1.0)
