@@ -46,7 +46,7 @@ from ..stats.identifiability import (
     identifiability_report,
     identifiable_to_paper_jacobian,
 )
-from .reconstruction import LinearReconstruction
+from .reconstruction import LinearReconstruction, propagate
 
 __all__ = [
     "IdentifiabilityReport",
@@ -109,12 +109,8 @@ def linear_reconstruction(params, cov_identifiable, pixels, sigma_px):
     LinearReconstruction
         Unpacks as ``mean (M, 3)`` mm and ``covariance (M, 3, 3)`` mm^2.
     """
-    from ..sensor.laser import triangulate_theta
-
-    theta = params.to_identifiable()
-    pts, _, dpix, dth = triangulate_theta(theta, np.asarray(pixels, float), jacobian=True)
-    C = np.nan_to_num(np.asarray(cov_identifiable, float))
-    cov = dth @ C @ np.swapaxes(dth, -1, -2) + sigma_px**2 * dpix @ np.swapaxes(dpix, -1, -2)
+    pts, cov = propagate(params.to_identifiable(), cov_identifiable,
+                         np.asarray(pixels, float), sigma_px**2 * np.eye(2))
     return LinearReconstruction(pts, cov)
 
 

@@ -181,6 +181,22 @@ def propagate(theta, cov_theta, pixels, pixel_cov):
     return pts, cov
 
 
+def _noisy_triangulation(theta, sigma_px, pixels, pixel_cov, rng):
+    """Each draw ``theta[s]`` (S, 7) triangulates the pixels (M, 2) perturbed by its pixel
+    noise: ``sigma_px[s]`` (S,), or ``pixel_cov`` (M, 2, 2) or (2, 2) px^2; (S, M, 3) mm."""
+    from ..sensor.laser import triangulate_theta
+
+    z = rng.standard_normal((len(theta),) + pixels.shape)
+    if pixel_cov is None:
+        noisy = pixels + np.asarray(sigma_px)[:, None, None] * z
+    else:
+        L = np.linalg.cholesky(np.broadcast_to(np.asarray(pixel_cov, float),
+                                               pixels.shape[:-1] + (2, 2)))
+        noisy = pixels + np.einsum("mij,smj->smi", L, z)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return triangulate_theta(theta[:, None, :], noisy)[0]
+
+
 class Reconstructor:
     """A calibration prepared for fast reconstruction of new laser pixels.
 
@@ -265,21 +281,14 @@ class Reconstructor:
     def sampled(self, pixels, *, pixel_cov=None, max_samples=400):
         """The sampled path: each posterior draw triangulates the pixels perturbed by
         its pixel noise (or ``pixel_cov``); a :class:`Reconstruction`."""
-        from ..sensor.laser import triangulate_theta
 
         if self.theta_samples is None:
             raise ValueError("the sampled path needs posterior draws (a Posterior's "
                              "reconstructor)")
         n = len(self.theta_samples)
         idx = np.linspace(0, n - 1, min(int(max_samples), n)).round().astype(int)
-        z = self._rng.standard_normal((len(idx),) + pixels.shape)
-        if pixel_cov is None:
-            noisy = pixels + self.sigma_samples[idx, None, None] * z
-        else:
-            L = np.linalg.cholesky(np.broadcast_to(pixel_cov, pixels.shape[:-1] + (2, 2)))
-            noisy = pixels + np.einsum("mij,smj->smi", L, z)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            samples, _ = triangulate_theta(self.theta_samples[idx][:, None, :], noisy)
+        samples = _noisy_triangulation(self.theta_samples[idx], self.sigma_samples[idx],
+                                       pixels, pixel_cov, self._rng)
         out = Reconstruction(samples, self.level)
         out.pixels = pixels
         return out
@@ -361,23 +370,14 @@ def _sampled_posterior(post, pixels, approx_points, sigma_scene, level, max_samp
     from .._validation import as_points
     from ..likelihood.points import LaserLikelihood
     from ..likelihood.points import draw_points as _draw_points
-    from ..sensor.laser import cone_point_theta, triangulate_theta
+    from ..sensor.laser import cone_point_theta
 
     idx = np.linspace(0, post.n_samples - 1, min(int(max_samples), post.n_samples))
     idx = idx.round().astype(int)
     theta = post.theta_samples[idx]
     sig = post._sigma_px_samples()[idx]
     if approx_points is None:
-        z = rng.standard_normal((len(idx),) + pixels.shape)
-        if pixel_cov is None:
-            noisy = pixels + sig[:, None, None] * z
-        else:
-            L = np.linalg.cholesky(np.broadcast_to(np.asarray(pixel_cov, float),
-                                                   pixels.shape[:-1] + (2, 2)))
-            noisy = pixels + np.einsum("mij,smj->smi", L, z)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            samples, _ = triangulate_theta(theta[:, None, :], noisy)
-        return Reconstruction(samples, level)
+        return Reconstruction(_noisy_triangulation(theta, sig, pixels, pixel_cov, rng), level)
     approx = np.atleast_2d(as_points(approx_points, "approx_points"))
     if approx.shape != (len(pixels), 3):
         raise ValueError(f"approx_points must have shape (M, 3) = {(len(pixels), 3)}, "
