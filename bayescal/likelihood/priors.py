@@ -111,6 +111,14 @@ class Prior:
     ----------
     dists : dict
         The eight frozen distributions, keyed by :data:`~bayescal.PARAM_NAMES`.
+
+    Examples
+    --------
+    >>> from scipy import stats
+    >>> import bayescal as bc
+    >>> prior = bc.Prior({"h": stats.norm(210.0, 5.0)})     # the other seven keep defaults
+    >>> float(prior.dists["h"].mean()), float(prior.dists["xi"].mean())
+    (210.0, 1.0)
     """
 
     def __init__(self, prior=None, *, nominal=None, n_phi=64):

@@ -147,6 +147,19 @@ class CalibrationResult:
         Method-specific outputs (pose, planes, ``point_covariance`` (N, 3, 3)).
     outlier_prob : ndarray, shape (N,), optional
         Per-point probability of being an outlier (None: not modelled).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=80, sigma_px=0.3, approx_error=0.02,
+    ...                       approx_model="gaussian", rng=0)
+    >>> res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+    ...                                 sigma_scene=ds.sigma_scene)
+    >>> res.covariance().shape, res.covariance(identifiable=True).shape, res.points.shape
+    ((8, 8), (7, 7), (80, 3))
+    >>> mean, cov = res.reconstruct(ds.pixels[:3])
+    >>> cov.shape
+    (3, 3, 3)
     """
 
     def __init__(self, *, method, params, points, covariance, covariance_identifiable,

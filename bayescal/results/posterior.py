@@ -59,6 +59,17 @@ class Posterior:
         extra global (see :attr:`diagnostics`).
     converged : bool
         The chain met its convergence rule (``diagnostics.rule``).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.02,
+    ...                       approx_model="gaussian", rng=0)
+    >>> post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.3,
+    ...                            sigma_scene=ds.sigma_scene, rng=1, min_ess=200,
+    ...                            n_samples=200, progress=False)
+    >>> post.param_samples.shape, post.point_samples.shape, post.reconstruct(ds.pixels).mean.shape
+    ((200, 8), (200, 60, 3), (60, 3))
     """
 
     def __init__(self, *, param_samples, point_samples, noise_samples, noise_names, pixels,
@@ -303,19 +314,16 @@ class Posterior:
             unless the scene noise was inferred).
         level : float, optional
             Credible level of the intervals.
-        max_samples : int, optional
-            Posterior samples used by the sampled path (evenly thinned).
-        rng : numpy.random.Generator, int or None
-            For the sampled path.
+        max_samples, rng : int; numpy.random.Generator, int or None, optional
+            Posterior samples used by the sampled path (evenly thinned), and its randomness.
         pixel_cov : array_like, shape (M, 2, 2) or (2, 2), optional
             Pixel noise covariance of the new pixels, px^2 (default: the posterior's
             pixel noise).
         method : {"auto", "linear", "sampled"}, optional
-            ``"auto"`` (default): the fast path of :meth:`reconstructor` (first order in
-            the identifiable parameters, checked against sampling once), falling back
-            to sampling where its check failed or a pixel lies off the calibrated
-            ring; ``"sampled"``: every posterior draw triangulates the pixel perturbed
-            by its pixel noise (Monte Carlo).
+            ``"auto"`` (default): the fast path of :meth:`reconstructor` (first order in the
+            identifiable parameters, checked against sampling once), sampling where its
+            check failed or off the calibrated ring; ``"sampled"``: every posterior draw
+            triangulates the pixel perturbed by its pixel noise (Monte Carlo).
 
         Returns
         -------
@@ -440,6 +448,17 @@ def load_posterior(path):
     Returns
     -------
     Posterior
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=40, sigma_px=0.3, rng=0)
+    >>> post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.3, sigma_scene=9.0,
+    ...                            rng=1, min_ess=200, n_samples=100, progress=False)
+    >>> path = post.save(pathlib.Path(tempfile.mkdtemp()) / "posterior.npz")
+    >>> bc.load_posterior(path).param_samples.shape
+    (100, 8)
     """
     path = pathlib.Path(path)
     if not path.exists():

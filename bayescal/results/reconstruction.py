@@ -234,6 +234,18 @@ class Reconstructor:
         in sds), ``n_probe``.
     radius_range : tuple of float
         Ring radii (px, about the principal point) the check covered, with a 2 px margin.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=80, sigma_px=0.3, approx_error=0.02,
+    ...                       approx_model="gaussian", rng=0)
+    >>> res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+    ...                                 sigma_scene=ds.sigma_scene)
+    >>> rc = res.reconstructor()                 # prepared once
+    >>> rec = rc(ds.pixels)                      # then every frame
+    >>> rec.mean.shape, rec.covariance.shape
+    ((80, 3), (80, 3, 3))
     """
 
     def __init__(self, theta, cov_theta, sigma_px, *, theta_samples=None, sigma_samples=None,
