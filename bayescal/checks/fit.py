@@ -20,7 +20,7 @@ from .rows import rows_text as _rows_text
 
 __all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
            "worst_rows", "flag_untrusted", "DOMAIN", "BOUND_TOL", "PRIOR_SD_LIMIT",
-           "NOISE_RATIO_LIMIT"]
+           "NOISE_RATIO_LIMIT", "GROSS_RATIO"]
 
 #: the domain of the parameters that have one (the model is undefined beyond it)
 DOMAIN = {"xi": (0.0, np.inf), "h": (0.0, np.inf), "beta": (0.0, np.pi / 2)}
@@ -30,6 +30,8 @@ BOUND_TOL = 1e-3
 PRIOR_SD_LIMIT = 10.0
 #: inferred noise and a robust scale of the residuals further apart than this disagree
 NOISE_RATIO_LIMIT = 1.5
+#: with the noise given, residuals whose robust scale exceeds it this many times fail grossly
+GROSS_RATIO = 2.0
 
 
 class NoiseCollapseError(ValueError):
@@ -143,7 +145,7 @@ def worst_rows(m, dof, n=5):
     return np.argsort(tail)[:n]
 
 
-def fit_problems(params, prior, *, noise_ratio=None):
+def fit_problems(params, prior, *, noise_ratio=None, given_ratio=None):
     """What makes a finished least-squares solution untrustworthy, in words.
 
     Parameters
@@ -154,6 +156,8 @@ def fit_problems(params, prior, *, noise_ratio=None):
         The priors it was solved with.
     noise_ratio : float, optional
         :func:`robust_noise_ratio` of its residuals when a noise level was inferred.
+    given_ratio : float, optional
+        :func:`robust_noise_ratio` of its residuals when the noise levels were given.
 
     Returns
     -------
@@ -174,6 +178,10 @@ def fit_problems(params, prior, *, noise_ratio=None):
                    "fit's own residuals: a few bad rows, or errors the model does not describe "
                    "(approximate points sharing a wall's error: give a floor plan), set it and "
                    "every sd with it")
+    if given_ratio is not None and given_ratio > GROSS_RATIO:
+        out.append(f"the residuals are {given_ratio:.3g} times the noise given (a robust scale "
+                   "of them): the noise levels given are too small, or the model does not fit "
+                   "the data (see result.model_check())")
     return out
 
 
@@ -192,10 +200,12 @@ def flag_untrusted(result, prior, m, dof, *, noise_inferred):
     dof : int or ndarray, shape (N,)
         Their degrees of freedom.
     noise_inferred : bool
-        Whether a noise level was inferred (then its robust scale is checked).
+        Whether a noise level was inferred (its robust scale is checked against the
+        inferred level; else against the levels given).
     """
-    ratio = robust_noise_ratio(m, dof) if noise_inferred else None
-    problems = fit_problems(result.params, prior, noise_ratio=ratio)
+    ratio = robust_noise_ratio(m, dof)
+    problems = fit_problems(result.params, prior, noise_ratio=ratio if noise_inferred else None,
+                            given_ratio=None if noise_inferred else ratio)
     if not problems:
         return
     rows = worst_rows(m, dof)

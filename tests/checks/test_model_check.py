@@ -28,7 +28,13 @@ def test_least_squares_fits_its_own_model(room):
 
 
 def test_wrong_noise_level_does_not_fit(room):
-    """The pixels carry 0.5 px; a fit told 0.2 px must be refused by the check."""
+    """The pixels carry 0.5 px; a fit told 0.2 px must be refused by the check; told
+    0.1 px (residuals > 2x the noise given, pixel and scene rows together), the fit
+    itself is not called converged."""
+    with pytest.raises(bc.ConvergenceError, match="times the noise given"):
+        _lsq(room, sigma_px=0.1)
+    res = _lsq(room, sigma_px=0.1, raise_on_failure=False)
+    assert not res.converged and "too small" in res.message
     chk = _lsq(room, sigma_px=0.2).model_check()
     assert not chk.fits and chk.message.startswith("MODEL DOES NOT FIT")
     assert chk.p_values["chi2"] < 0.01

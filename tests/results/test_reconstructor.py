@@ -91,3 +91,33 @@ def test_least_squares_reconstructor_is_its_reconstruct():
     b = res.reconstructor(sigma_px=0.3)(ds.pixels[:20])
     np.testing.assert_allclose(b.mean, a.mean, rtol=1e-12)
     np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_fast_path_covers_held_out_truth_over_replications():
+    """M = 40 replications (new noise, new posterior, 100 held-out pixels each, 2500 mm):
+    the fraction of held-out points inside their 90 % ellipsoid. Points of one replication
+    share its calibration error, so the fractions scatter more than binomially; the test
+    is a one-sample t-test of their mean against 0.9 at the 1 % level (false failure 1 %)."""
+    from scipy import stats
+
+    inside = []
+    for seed in range(40):
+        ds = bc.simulate_room(range_mm=2500, n_points=150, n_walls=6, sigma_px=0.2,
+                              approx_error=0.03, approx_model="gaussian", rng=1000 + seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", bc.NotConvergedWarning)
+            post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                       sigma_scene=ds.sigma_scene, rng=seed, min_ess=300,
+                                       progress=False)
+        new = bc.simulate_room(range_mm=2500, n_points=100, n_walls=6, sigma_px=0.2,
+                               rng=5000 + seed)
+        mean, cov = post.reconstruct(new.pixels)
+        d = new.points - mean
+        nse = np.einsum("mi,mij,mj->m", d, np.linalg.inv(cov), d)
+        inside.append(np.mean(nse < stats.chi2.ppf(0.9, 3)))
+    frac, sd = float(np.mean(inside)), float(np.std(inside, ddof=1))
+    half = stats.t.ppf(0.995, len(inside) - 1) * sd / np.sqrt(len(inside))
+    print(f"held-out 90 % ellipsoid coverage over 40 replications: {frac:.3f} "
+          f"(per replication sd {sd:.3f}; 99 % band 0.9 +- {half:.3f})")
+    assert abs(frac - 0.9) <= half
