@@ -12,6 +12,8 @@ from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
+from .image.extract import LaserPixels, extract_laser
+from .image.read import read_image
 from .likelihood.priors import Prior, default_prior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.calibration import (
@@ -25,6 +27,7 @@ from .results.metrics import reconstruction_error, reconstruction_errors
 from .results.posterior import Posterior, load_posterior
 from .results.reconstruction import Reconstruction
 from .scene.floorplan import FloorPlan
+from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
@@ -67,4 +70,9 @@ __all__ = [
     "NotConvergedError",
     "DuplicateRowsWarning",
     "NoiseCollapseError",
+    "render_image",
+    "RenderTruth",
+    "extract_laser",
+    "read_image",
+    "LaserPixels",
 ]
