@@ -30,7 +30,8 @@ from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
 
-__all__ = ["SimulateJob", "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
+__all__ = ["SimulateJob", "ExtractJob",
+           "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
            "load_truth", "check_geometry", "MIN_POINTS", "MIN_AZIMUTH_SPAN_DEG"]
 
 
@@ -110,6 +111,46 @@ class SimulateJob:
                                  approx_model=self.approx_model, rng=self.seed)
         except (TypeError, ValueError) as exc:
             raise UsageError(str(exc)) from None
+
+
+def _read_image(path, option, channel):
+    from ..image.read import read_image
+
+    try:
+        return read_image(path, channel=channel)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"{option} {path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ExtractJob:
+    """Extract laser pixels from an image; options as in ``EXTRACT_OPTIONS``."""
+
+    image_path: pathlib.Path
+    image: np.ndarray = field(repr=False)
+    background: np.ndarray | None = field(repr=False)
+    center: tuple | None
+    channel: int
+    out: pathlib.Path
+    force: bool = False
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job: both images read and checked before anything is written."""
+        o = _opts(op.EXTRACT_OPTIONS, options)
+        inputs = [p for p in (o["image"], o["background"]) if p is not None]
+        check_out(o["out"], force=o["force"], inputs=inputs)
+        image = _read_image(o["image"], "IMAGE", o["channel"])
+        bg = None
+        if o["background"] is not None:
+            bg = _read_image(o["background"], "--background", o["channel"])
+            if bg.shape != image.shape:
+                raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
+                                 f"from the image's {image.shape}")
+        center = None if o["center"] is None else tuple(float(c) for c in o["center"])
+        return cls(image_path=pathlib.Path(o["image"]), image=image, background=bg,
+                   center=center, channel=o["channel"], out=pathlib.Path(o["out"]),
+                   force=o["force"])
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import Failure
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 
-__all__ = ["run_simulate", "write_simulation", "run_calibrate", "calibrate_result",
+__all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
            "run_reconstruct", "run_report", "points_csv"]
 
 
@@ -78,6 +78,31 @@ def run_simulate(job, folder):
     ds = job.dataset()
     for f in write_simulation(folder, ds, seed=job.seed):
         print(f"wrote {job.out / f.name}")
+
+
+def run_extract(job, folder):
+    """Extract the laser pixels; write ``laser.csv`` and ``overlay.png``."""
+    from ..image.extract import extract_laser
+    from ..io.data import _write_csv
+    from ..plotting.basic import savefig
+    from ..plotting.image import plot_laser_overlay
+
+    lp = extract_laser(job.image, background=job.background, center=job.center)
+    if len(lp) == 0 or np.all(lp.flagged):
+        return f"no laser ring found in {job.image_path}"
+    p = folder.path
+    note = (f"bayescal extract {job.image_path.name}: u, v laser centre line (px); cov_*: "
+            "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
+            "noise sd; flagged: 1 = likely distractor")
+    _write_csv(p / "laser.csv", {
+        "u": lp.pixels[:, 0], "v": lp.pixels[:, 1], "cov_uu": lp.covariance[:, 0, 0],
+        "cov_uv": lp.covariance[:, 0, 1], "cov_vv": lp.covariance[:, 1, 1], "snr": lp.snr,
+        "flagged": lp.flagged.astype(float)}, header_comment=note)
+    savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
+    folder.add(p / "laser.csv", p / "overlay.png")
+    print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
+          f"{np.median(lp.sd_normal):.3f} px; wrote {job.out / 'laser.csv'}, "
+          f"{job.out / 'overlay.png'}")
 
 
 def points_csv(path, points, cov, outlier_prob=None, *, first=None):

@@ -1,0 +1,52 @@
+"""``bayescal extract``: image files in, laser.csv and an overlay out; bad input writes nothing."""
+
+import csv
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+from tests.cli.test_cli import run
+
+iio = pytest.importorskip("imageio.v3")
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory):
+    root = tmp_path_factory.mktemp("extract")
+    img, truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), rng=2,
+                                 with_background=True, n_lamps=2, ghost=0.3, bits=16)
+    rgb = np.stack([img, img // 3, img // 5], axis=-1).astype(np.uint16)
+    iio.imwrite(root / "on.tif", rgb)
+    iio.imwrite(root / "off.png", truth.background.astype(np.uint16))
+    return root, truth
+
+
+def test_extract_writes_csv_and_overlay(images):
+    root, truth = images
+    r = run("extract", "on.tif", "--background", "off.png", "--out", "ex", cwd=root)
+    assert r.returncode == 0, r.stderr
+    with open(root / "ex" / "laser.csv") as f:
+        rows = [row for row in csv.reader(line for line in f if not line.startswith("#"))]
+    assert rows[0] == ["u", "v", "cov_uu", "cov_uv", "cov_vv", "snr", "flagged"]
+    a = np.array(rows[1:], dtype=float)
+    assert len(a) > 200 and (root / "ex" / "overlay.png").stat().st_size > 1000
+    # every unflagged pixel lies within 1 px of the true ring
+    good = a[a[:, 6] == 0, :2]
+    d = np.min(np.linalg.norm(good[:, None] - truth.pixels[None], axis=-1), axis=1)
+    assert np.mean(d < 1.0) > 0.98
+
+
+@pytest.mark.parametrize("args, match", [
+    (("missing.png",), "no such file"),
+    (("on.tif", "--background", "small.png"), "shape"),
+    (("on.tif", "--center", "1", "nan"), "finite"),
+    (("bad.png",), "cannot read"),
+])
+def test_bad_input_exit_2_nothing_written(images, args, match):
+    root, _ = images
+    iio.imwrite(root / "small.png", np.zeros((20, 20), np.uint8))
+    (root / "bad.png").write_text("not an image")
+    r = run("extract", *args, "--out", "bad_out", cwd=root)
+    assert r.returncode == 2 and match in r.stderr
+    assert not (root / "bad_out").exists()
