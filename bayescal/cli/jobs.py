@@ -91,6 +91,7 @@ class SimulateJob:
     seed: int
     out: pathlib.Path
     force: bool = False
+    images: bool = False
 
     @classmethod
     def build(cls, **options):

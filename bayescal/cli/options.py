@@ -258,6 +258,9 @@ SIMULATE_OPTIONS = (
                               "protocol)"}),
     Opt(("--sigma-3d",), {"type": nonneg_float, "default": 0.0,
                           "help": "extra 3D measurement noise, mm"}),
+    Opt(("--images",), {"action": "store_true", "help": "also render the room's camera "
+                        "images: image.png (16-bit, laser on, lamps and a ghost), "
+                        "image_off.png (laser off) and ring.csv (the true centre line)"}),
     *_out("sim"), _SEED,
 )
 

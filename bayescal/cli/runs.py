@@ -76,8 +76,33 @@ def write_simulation(folder, ds, *, seed):
 def run_simulate(job, folder):
     """Simulate and write the inputs of ``calibrate`` (see :func:`write_simulation`)."""
     ds = job.dataset()
-    for f in write_simulation(folder, ds, seed=job.seed):
+    files = write_simulation(folder, ds, seed=job.seed)
+    if job.images:
+        files += write_images(folder, ds, seed=job.seed)
+    for f in files:
         print(f"wrote {job.out / f.name}")
+
+
+def write_images(folder, ds, *, seed):
+    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``."""
+    import imageio.v3 as iio
+
+    from ..io.data import _write_csv
+    from ..scene.render import render_image
+
+    img, truth = render_image(ds.params, ds.walls, n_lamps=2, ghost=0.3, bits=16,
+                              with_background=True, rng=seed)
+    p = folder.path
+    iio.imwrite(p / "image.png", img)
+    iio.imwrite(p / "image_off.png", truth.background)
+    _write_csv(p / "ring.csv", {"u": truth.pixels[:, 0], "v": truth.pixels[:, 1],
+                                "x": truth.points[:, 0], "y": truth.points[:, 1],
+                                "z": truth.points[:, 2], "azimuth": truth.azimuth},
+               header_comment="bayescal simulate --images: the true laser centre line of "
+               "image.png\nu, v (px); x, y, z (mm, frame C); azimuth (rad)")
+    files = [p / "image.png", p / "image_off.png", p / "ring.csv"]
+    folder.add(*files)
+    return files
 
 
 def run_extract(job, folder):

@@ -50,3 +50,19 @@ def test_bad_input_exit_2_nothing_written(images, args, match):
     r = run("extract", *args, "--out", "bad_out", cwd=root)
     assert r.returncode == 2 and match in r.stderr
     assert not (root / "bad_out").exists()
+
+
+def test_simulate_images_then_extract(tmp_path):
+    r = run("simulate", "--images", "--range-mm", 2500, "--n-points", 60, "--seed", 3,
+            "--out", "sim", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    img = iio.imread(tmp_path / "sim" / "image.png")
+    assert img.dtype == np.uint16 and img.shape == (600, 800)
+    r = run("extract", "sim/image.png", "--background", "sim/image_off.png", "--out", "ex",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    ring = np.loadtxt(tmp_path / "sim" / "ring.csv", delimiter=",", skiprows=3)
+    got = np.loadtxt(tmp_path / "ex" / "laser.csv", delimiter=",", skiprows=2)
+    good = got[got[:, 6] == 0, :2]
+    d = np.min(np.linalg.norm(good[:, None] - ring[None, :, :2], axis=-1), axis=1)
+    assert np.median(d) < 0.25
