@@ -43,8 +43,8 @@ def test_intervals_cover_the_truth_except_the_principal_point(z_scores):
 @pytest.mark.slow
 @pytest.mark.xfail(reason="known: texture under the stripe gives sub-pixel errors correlated "
                    "along the ring, which per-point covariances do not carry; u0, v0 (informed "
-                   "by every point) get intervals too narrow (coverage 0.80 and 0.75, z rms 1.26 and "
-                   "1.36, on 20 replications). docs/images.md", strict=False)
+                   "by every point) get intervals too narrow (coverage 0.80 and 0.75, z rms "
+                   "1.26 and 1.36, on 20 replications). docs/images.md", strict=False)
 def test_principal_point_intervals_cover_the_truth(z_scores):
     cover = np.mean(np.abs(z_scores[:, 3:5]) < Z90, axis=0)
     assert np.all(cover >= 0.75), cover
