@@ -204,6 +204,10 @@ def _least_squares(job):
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers, **kw)
+    from .jobs import uses_pixel_cov
+
+    if uses_pixel_cov(job.method, job.data, job.plan):
+        kw["pixel_cov"] = job.data.pixel_cov
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, **kw)

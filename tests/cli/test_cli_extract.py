@@ -66,3 +66,41 @@ def test_simulate_images_then_extract(tmp_path):
     good = got[got[:, 6] == 0, :2]
     d = np.min(np.linalg.norm(good[:, None] - ring[None, :, :2], axis=-1), axis=1)
     assert np.median(d) < 0.25
+
+
+def _with_points(root, name, *, bad_row=None):
+    """laser.csv of `extract` plus x, y, z (true points with 2 % error) -> NAME."""
+    truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), rng=2,
+                            with_background=True, n_lamps=2, ghost=0.3, bits=16)[1]
+    a = np.loadtxt(root / "ex" / "laser.csv", delimiter=",", skiprows=2)
+    a = a[a[:, 6] == 0]
+    k = np.argmin(np.sum((a[:, None, :2] - truth.pixels[None]) ** 2, -1), 1)
+    pts = truth.points[k]
+    sig = 0.02 * np.abs(pts) + 1.0
+    pts = pts + np.random.default_rng(0).normal(size=pts.shape) * sig
+    if bad_row is not None:
+        a[bad_row, 4] = -1.0
+    cols = np.column_stack([a[:, :2], pts, sig, a[:, 2:5]])
+    head = "u,v,x,y,z,sigma_x,sigma_y,sigma_z,cov_uu,cov_uv,cov_vv"
+    np.savetxt(root / name, cols, delimiter=",", header=head, comments="")
+
+
+def test_calibrate_reads_pixel_covariances(images):
+    root, _ = images
+    if not (root / "ex").exists():
+        assert run("extract", "on.tif", "--background", "off.png", "--out", "ex",
+                   cwd=root).returncode == 0
+    _with_points(root, "cov.csv")
+    r = run("calibrate", "cov.csv", "--out", "cal", "--no-progress", cwd=root)
+    assert r.returncode == 0, r.stderr
+    assert "per-point covariances" in r.stdout + (root / "cal" / "report.md").read_text()
+    res = bc.load_result(root / "cal" / "result.json")
+    z = (res.params.to_identifiable() - bc.SensorParams.paper().to_identifiable()) / np.sqrt(
+        np.diag(res.covariance_identifiable))
+    assert np.all(np.abs(z) < 5)
+    r = run("calibrate", "cov.csv", "--sigma-px", "infer", "--out", "cal2", cwd=root)
+    assert r.returncode == 2 and "not supported" in r.stderr and not (root / "cal2").exists()
+    _with_points(root, "badcov.csv", bad_row=3)
+    r = run("calibrate", "badcov.csv", "--out", "cal3", cwd=root)
+    assert r.returncode == 2 and "line 5" in r.stderr and "positive definite" in r.stderr
+    assert not (root / "cal3").exists()
