@@ -13,6 +13,8 @@ from .checks.inputs import DuplicateRowsWarning
 from .errors import DegenerateInputError
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
+from .image.extract import LaserPixels, extract_laser
+from .image.read import read_image
 from .likelihood.priors import Prior, default_prior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.calibration import (
@@ -31,6 +33,7 @@ from .results.reconstruction import (
     reconstruct_frames,
 )
 from .scene.floorplan import FloorPlan
+from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
@@ -79,4 +82,9 @@ __all__ = [
     "DuplicateRowsWarning",
     "NoiseCollapseError",
     "DegenerateInputError",
+    "render_image",
+    "RenderTruth",
+    "extract_laser",
+    "read_image",
+    "LaserPixels",
 ]

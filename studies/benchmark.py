@@ -123,6 +123,41 @@ def _walkers(params, n_walkers, rng):
     return a
 
 
+def _plain_peaks(img, center, n):
+    """The naive baseline: a Python loop over azimuths, argmax and a 3-point parabola."""
+    out = []
+    radii = np.arange(3.0, 280.0)
+    for phi in np.linspace(-np.pi, np.pi, n, endpoint=False):
+        u = np.rint(center[0] + np.cos(phi) * radii).astype(int)
+        v = np.rint(center[1] + np.sin(phi) * radii).astype(int)
+        prof = img[v, u].astype(float)
+        k = int(np.clip(np.argmax(prof), 1, len(prof) - 2))
+        a, b, c = prof[k - 1:k + 2]
+        den = a - 2 * b + c
+        out.append(radii[k] + (0.5 * (a - c) / den if den != 0 else 0.0))
+    return np.array(out)
+
+
+@benchmark("image")
+def bench_image(timer):
+    """One 800x600 image: rendering it, and extracting its laser pixels with covariances
+    (target <= 1 s) against a plain per-azimuth Python loop without covariances."""
+    p = bc.SensorParams.paper()
+    img, truth = bc.render_image(p, bc.room_walls(2500), rng=0, n_lamps=2, ghost=0.3,
+                                 with_background=True)
+    rows = compare(timer, "render_image", "800x600, 2500 mm, lamps, ghost, laser-off image",
+                   lambda: bc.render_image(p, bc.room_walls(2500), rng=0, n_lamps=2, ghost=0.3,
+                                           with_background=True), {},
+                   baseline_note="vectorised over pixels")
+    n = len(bc.extract_laser(img, background=truth.background))
+    rows += compare(timer, "extract_laser", f"800x600, {n} azimuths",
+                    lambda: _plain_peaks(img.astype(float) - truth.background, (400.0, 300.0), n),
+                    {"extract_laser (laser-off image, centre fitted, covariances)":
+                     lambda: bc.extract_laser(img, background=truth.background)},
+                    baseline_note="plain peak finder, Python loop over azimuths")
+    return rows
+
+
 @benchmark("project_triangulate")
 def bench_project_triangulate(timer):
     """Eq. (1) and the ray/cone intersection: one sensor, and 64 walkers at once."""

@@ -14,8 +14,8 @@ MAX_TOP_MODULES = 6
 MAX_SUBPACKAGE_MODULES = 12
 #: the subpackages, bottom first: each may import only those before it (and the top-level
 #: ``errors``, ``constants``, ``_validation``); ``bayescal/__init__`` and ``__main__`` sit above all
-LAYERS = ("sensor", "stats", "scene", "likelihood", "results", "io", "checks", "fit", "mcmc",
-          "validation", "plotting", "report", "cli")
+LAYERS = ("sensor", "image", "stats", "scene", "likelihood", "results", "io", "checks", "fit",
+          "mcmc", "validation", "plotting", "report", "cli")
 TOP_LOW = ("errors", "constants", "_validation")
 #: the only imports allowed to point up: inside a method of a result, a convenience that
 #: reaches a higher layer when called (``r.save()``, ``r.corner()``), never at import time.

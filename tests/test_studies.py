@@ -225,3 +225,11 @@ def test_bayescal_study_passes_scheduler_to_a_real_dask_cluster(tmp_path):
     assert [t["x"] for t in on_dask] == [t["x"] for t in local]      # same seeds, same numbers
     pids = {t["pid"] for t in on_dask}
     assert os.getpid() not in pids and len(pids) >= 1               # ran in the worker processes
+
+
+def test_extraction_smoke(tmp_path):
+    res = _run("extraction", tmp_path, "--workers", "1")
+    assert [r["range_mm"] for r in res["rows"]] == [1000.0, 2500.0]
+    for r in res["rows"]:
+        assert 0 < r["robust_sd"] < 0.5 and 0 < r["given_sd"] < 0.5
+    assert (tmp_path / "extraction.png").stat().st_size > 10_000

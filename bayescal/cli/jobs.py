@@ -30,7 +30,8 @@ from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
 
-__all__ = ["SimulateJob", "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
+__all__ = ["SimulateJob", "ExtractJob",
+           "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
            "load_truth", "check_geometry", "MIN_POINTS", "MIN_AZIMUTH_SPAN_DEG"]
 
 
@@ -90,6 +91,7 @@ class SimulateJob:
     seed: int
     out: pathlib.Path
     force: bool = False
+    images: bool = False
 
     @classmethod
     def build(cls, **options):
@@ -110,6 +112,46 @@ class SimulateJob:
                                  approx_model=self.approx_model, rng=self.seed)
         except (TypeError, ValueError) as exc:
             raise UsageError(str(exc)) from None
+
+
+def _read_image(path, option, channel):
+    from ..image.read import read_image
+
+    try:
+        return read_image(path, channel=channel)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"{option} {path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ExtractJob:
+    """Extract laser pixels from an image; options as in ``EXTRACT_OPTIONS``."""
+
+    image_path: pathlib.Path
+    image: np.ndarray = field(repr=False)
+    background: np.ndarray | None = field(repr=False)
+    center: tuple | None
+    channel: int
+    out: pathlib.Path
+    force: bool = False
+
+    @classmethod
+    def build(cls, **options):
+        """Validated job: both images read and checked before anything is written."""
+        o = _opts(op.EXTRACT_OPTIONS, options)
+        inputs = [p for p in (o["image"], o["background"]) if p is not None]
+        check_out(o["out"], force=o["force"], inputs=inputs)
+        image = _read_image(o["image"], "IMAGE", o["channel"])
+        bg = None
+        if o["background"] is not None:
+            bg = _read_image(o["background"], "--background", o["channel"])
+            if bg.shape != image.shape:
+                raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
+                                 f"from the image's {image.shape}")
+        center = None if o["center"] is None else tuple(float(c) for c in o["center"])
+        return cls(image_path=pathlib.Path(o["image"]), image=image, background=bg,
+                   center=center, channel=o["channel"], out=pathlib.Path(o["out"]),
+                   force=o["force"])
 
 
 @dataclass(frozen=True)
@@ -176,6 +218,8 @@ class CalibrateJob:
         truth = load_truth(o["truth"], None if data is None else data.n_points)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
                         else (None, "not used"))
+        if data is not None and data.pixel_cov is not None:
+            spx, spx_how = _pixel_cov_setting(o["sigma_px"], data, method, plan, spx, spx_how)
         ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
                         else sigma_scene_setting(o["sigma_scene"], data))
         if data is not None and method != "sequential":
@@ -224,6 +268,29 @@ class CalibrateJob:
             if data.approx_points is not None:
                 check_projection_domain(data.approx_points, data.point_table, nominal)
         return data, calib, plan
+
+
+def uses_pixel_cov(method, data, plan):
+    """True when the job's fit takes the data file's per-point pixel covariances."""
+    return (method == "simultaneous" and plan is None and data is not None
+            and data.pixel_cov is not None)
+
+
+def _pixel_cov_setting(value, data, method, plan, spx, spx_how):
+    """The pixel-noise setting when the file has cov_uu, cov_uv, cov_vv columns."""
+    import warnings
+
+    if not uses_pixel_cov(method, data, plan):
+        warnings.warn(f"{data.pixel_table.path}: ignoring the cov_uu, cov_uv, cov_vv columns "
+                      "(used by --method simultaneous with approximate points only)",
+                      stacklevel=2)
+        return spx, spx_how
+    if value == "infer":
+        raise UsageError("--sigma-px infer with the file's cov_uu, cov_uv, cov_vv columns: "
+                         "inferring a scale on the covariances is not supported yet; give "
+                         "--sigma-px SCALE (1 = the covariances as they are)")
+    scale = 1.0 if value is None else float(value)
+    return scale, f"{scale:g} x the file's per-point covariances (cov_uu, cov_uv, cov_vv)"
 
 
 def _read_plan(o):
@@ -295,6 +362,7 @@ class ReconstructJob:
     def build(cls, **options):
         """Validated job (:data:`~bayescal.cli.options.RECONSTRUCT_OPTIONS`); every frame
         is read and checked before anything is written."""
+        from ..image.extract import IMAGE_SUFFIXES, laser_frame
         from ..io.data import check_pixels_in_image, load_pixels, pixel_covariance
 
         o = _opts(op.RECONSTRUCT_OPTIONS, options)
@@ -308,6 +376,10 @@ class ReconstructJob:
                              "; each frame's point cloud is named after its file")
         frames = []
         for path in paths:
+            if pathlib.Path(path).suffix.lower() in IMAGE_SUFFIXES:
+                frames.append(laser_frame(pathlib.Path(path),
+                                          center=(result.params.u0, result.params.v0)))
+                continue
             pixels, table = load_pixels(path)
             check_pixels_in_image(pixels, table, image_size=o["image_size"],
                                   margin=o["image_margin"])

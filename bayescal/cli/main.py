@@ -88,6 +88,11 @@ _COMMANDS = {
                  "sigma_x/y/z, sigma_px), walls.csv (the room's rough floor plan, for "
                  "calibrate --walls), calibration.npz, grid.csv, calib_laser.csv and "
                  "truth.json into --out."),
+    "extract": (op.EXTRACT_OPTIONS, "extract laser pixels with covariances from an image",
+                "Extract the laser centre line from an image (optionally minus a laser-off "
+                "image): one sub-pixel point per azimuth with its 2x2 covariance (px^2), "
+                "SNR and a distractor flag. Writes laser.csv (u, v, cov_uu, cov_uv, cov_vv, "
+                "snr, flagged) and overlay.png into --out."),
     "calibrate": (op.CALIBRATE_OPTIONS, "calibrate from laser pixels and approximate points "
                   "or a rough floor plan",
                   "Calibrate the sensor. simultaneous: MAP least squares on pixels and "
@@ -116,7 +121,7 @@ _COMMANDS = {
 
 
 def build_parser():
-    """The argument parser with its six subcommands (options from :mod:`bayescal.cli.options`)."""
+    """The argument parser with its seven subcommands (options from :mod:`bayescal.cli.options`)."""
     parser = _Parser(prog="bayescal", description=_DESCRIPTION,
                      epilog=_EPILOG, formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=_version())
@@ -135,10 +140,12 @@ def _run(args):
     from . import demo, jobs, runs
 
     o = {k: v for k, v in vars(args).items() if k != "command"}
-    build = {"simulate": jobs.SimulateJob, "calibrate": jobs.CalibrateJob,
+    build = {"simulate": jobs.SimulateJob, "extract": jobs.ExtractJob,
+             "calibrate": jobs.CalibrateJob,
              "reconstruct": jobs.ReconstructJob, "report": jobs.ReportJob,
              "study": jobs.StudyJob, "demo": jobs.DemoJob}[args.command].build
-    run = {"simulate": runs.run_simulate, "calibrate": runs.run_calibrate,
+    run = {"simulate": runs.run_simulate, "extract": runs.run_extract,
+           "calibrate": runs.run_calibrate,
            "reconstruct": runs.run_reconstruct, "report": runs.run_report,
            "study": demo.run_study, "demo": demo.run_demo}[args.command]
     job = build(**o)

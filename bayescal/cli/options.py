@@ -23,7 +23,8 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "nonneg_float", "image_size", "sigma_px_option", "sigma_scene_option",
            "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
-           "STUDY_OPTIONS", "DEMO_OPTIONS", "METHODS"]
+           "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS",
+           "finite_float"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
 _BAD = argparse.ArgumentTypeError
@@ -166,6 +167,14 @@ def prior_option(text):
     return name, frozen
 
 
+def finite_float(text):
+    """A finite number."""
+    v = _number(text, "a finite number")
+    if not math.isfinite(v):
+        raise _BAD(f"{text!r} is not finite; expected a finite number")
+    return v
+
+
 def input_file(text):
     """An existing, readable file."""
     p = pathlib.Path(text)
@@ -249,6 +258,9 @@ SIMULATE_OPTIONS = (
                               "protocol)"}),
     Opt(("--sigma-3d",), {"type": nonneg_float, "default": 0.0,
                           "help": "extra 3D measurement noise, mm"}),
+    Opt(("--images",), {"action": "store_true", "help": "also render the room's camera "
+                        "images: image.png (16-bit, laser on, lamps and a ghost), "
+                        "image_off.png (laser off) and ring.csv (the true centre line)"}),
     *_out("sim"), _SEED,
 )
 
@@ -302,8 +314,9 @@ CALIBRATE_OPTIONS = (
 
 RECONSTRUCT_OPTIONS = (
     Opt(("pixels",), {"type": input_file, "nargs": "+", "metavar": "PIXELS",
-                      "help": "one CSV or NPZ per frame, with columns u, v (px) and "
-                              "optionally cov_uu, cov_uv, cov_vv (px^2, per-pixel noise)"}),
+                      "help": "one file per frame: a CSV or NPZ with columns u, v (px) and "
+                              "optionally cov_uu, cov_uv, cov_vv (px^2, per-pixel noise), or "
+                              "an image (PNG, TIFF, JPEG) run through the laser extractor"}),
     Opt(("--run",), {"type": input_folder, "required": True,
                      "help": "output folder of 'bayescal calibrate'"}),
     Opt(("--sigma-px",), {"type": nonneg_float, "help": "least-squares runs: pixel noise of "
@@ -328,6 +341,20 @@ DEMO_OPTIONS = (
                                    "help": "do not count a too-short chain as a failure"}),
     Opt(("--no-progress",), {"action": "store_true", "help": "no progress bar"}),
     *_out("out"), _SEED,
+)
+
+EXTRACT_OPTIONS = (
+    Opt(("image",), {"type": input_file, "help": "image with the laser on: PNG, TIFF or JPEG, "
+                     "8 or 16 bit, grey or colour"}),
+    Opt(("--background",), {"type": input_file, "metavar": "IMAGE", "help": "the same view "
+                             "with the laser off, subtracted first (strongly advised on "
+                             "textured walls)"}),
+    Opt(("--center",), {"type": finite_float, "nargs": 2, "metavar": ("U", "V"),
+                        "help": "centre of the radial profiles, px (default: fitted to the "
+                        "ring)"}),
+    Opt(("--channel",), {"type": int, "default": 0, "choices": (0, 1, 2),
+                         "help": "colour channel of the laser (0 red, 1 green, 2 blue)"}),
+    *_out("extract"),
 )
 
 STUDY_OPTIONS = (

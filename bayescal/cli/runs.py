@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 
-__all__ = ["run_simulate", "write_simulation", "run_calibrate", "calibrate_result",
+__all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
            "run_reconstruct", "run_report", "points_csv"]
 
 
@@ -76,8 +76,58 @@ def write_simulation(folder, ds, *, seed):
 def run_simulate(job, folder):
     """Simulate and write the inputs of ``calibrate`` (see :func:`write_simulation`)."""
     ds = job.dataset()
-    for f in write_simulation(folder, ds, seed=job.seed):
+    files = write_simulation(folder, ds, seed=job.seed)
+    if job.images:
+        files += write_images(folder, ds, seed=job.seed)
+    for f in files:
         print(f"wrote {job.out / f.name}")
+
+
+def write_images(folder, ds, *, seed):
+    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``."""
+    import imageio.v3 as iio
+
+    from ..io.data import _write_csv
+    from ..scene.render import render_image
+
+    img, truth = render_image(ds.params, ds.walls, n_lamps=2, ghost=0.3, bits=16,
+                              with_background=True, rng=seed)
+    p = folder.path
+    iio.imwrite(p / "image.png", img)
+    iio.imwrite(p / "image_off.png", truth.background)
+    _write_csv(p / "ring.csv", {"u": truth.pixels[:, 0], "v": truth.pixels[:, 1],
+                                "x": truth.points[:, 0], "y": truth.points[:, 1],
+                                "z": truth.points[:, 2], "azimuth": truth.azimuth},
+               header_comment="bayescal simulate --images: the true laser centre line of "
+               "image.png\nu, v (px); x, y, z (mm, frame C); azimuth (rad)")
+    files = [p / "image.png", p / "image_off.png", p / "ring.csv"]
+    folder.add(*files)
+    return files
+
+
+def run_extract(job, folder):
+    """Extract the laser pixels; write ``laser.csv`` and ``overlay.png``."""
+    from ..image.extract import extract_laser
+    from ..io.data import _write_csv
+    from ..plotting.basic import savefig
+    from ..plotting.image import plot_laser_overlay
+
+    lp = extract_laser(job.image, background=job.background, center=job.center)
+    if len(lp) == 0 or np.all(lp.flagged):
+        return f"no laser ring found in {job.image_path}"
+    p = folder.path
+    note = (f"bayescal extract {job.image_path.name}: u, v laser centre line (px); cov_*: "
+            "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
+            "noise sd; flagged: 1 = likely distractor")
+    _write_csv(p / "laser.csv", {
+        "u": lp.pixels[:, 0], "v": lp.pixels[:, 1], "cov_uu": lp.covariance[:, 0, 0],
+        "cov_uv": lp.covariance[:, 0, 1], "cov_vv": lp.covariance[:, 1, 1], "snr": lp.snr,
+        "flagged": lp.flagged.astype(float)}, header_comment=note)
+    savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
+    folder.add(p / "laser.csv", p / "overlay.png")
+    print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
+          f"{np.median(lp.sd_normal):.3f} px; wrote {job.out / 'laser.csv'}, "
+          f"{job.out / 'overlay.png'}")
 
 
 def points_csv(path, points, cov, outlier_prob=None, *, first=None):
@@ -154,6 +204,10 @@ def _least_squares(job):
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers, **kw)
+    from .jobs import uses_pixel_cov
+
+    if uses_pixel_cov(job.method, job.data, job.plan):
+        kw["pixel_cov"] = job.data.pixel_cov
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, **kw)

@@ -67,7 +67,8 @@ _REQUIRED = object()      # sigma_scene: required with approximate points, absen
 def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQUIRED, prior=None,
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
-                           outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+                           outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
+                           pixel_cov=None):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
 
     Parameters
@@ -87,6 +88,12 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         an axis = no information, e.g. z derived from the nominal cone). A
         relative error is passed as e.g. ``0.05 * abs(approx_points)``.
         ``None`` estimates ``kappa`` in ``sigma_scene_i = kappa * rho_i``.
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``). The
+        noise of pixel i is then ``sigma_px^2 pixel_cov_i``: pass ``sigma_px=1.0`` to
+        take the covariances as they are (a scale must be given: inferring it is not
+        supported yet). Needs approximate points with ``estimate_points=True`` (not
+        yet a FloorPlan, nor the posterior sampler).
     prior : dict, optional
         ``{name: scipy.stats frozen distribution}`` for any of the eight
         parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
@@ -137,6 +144,12 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     >>> res.converged
     True
     """
+    if pixel_cov is not None and (isinstance(approx_points, FloorPlan) or not estimate_points):
+        raise TypeError("pixel_cov is supported with approximate points and "
+                        "estimate_points=True only (not yet with a FloorPlan)")
+    if pixel_cov is not None and sigma_px is None:
+        raise ValueError("with pixel_cov, sigma_px is the scale on the covariances and must be "
+                         "given (1.0: as they are); inferring it is not supported yet")
     if isinstance(approx_points, FloorPlan):
         if sigma_scene is not _REQUIRED or not estimate_points:
             raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
@@ -157,7 +170,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                                                     center=(init.u0, init.v0))
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
                           outliers=outliers and estimate_points, outlier_scale=outlier_scale,
-                          outlier_prior=outlier_prior)
+                          outlier_prior=outlier_prior, pixel_cov=pixel_cov)
     theta0 = to_identifiable(init.to_array())
     q0 = lik.initial_q(theta0)
     if not estimate_points:
@@ -320,12 +333,7 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
     cov8 = 0.5 * (cov8 + cov8.T)
     params = SensorParams.from_array(from_identifiable(sol.theta, sol.phi))
     points = cone_point_theta(sol.theta, sol.q)
-    pix_rms = float(np.sqrt(np.sum(keep[:, None] * (R[:, :2] * sig) ** 2)
-                            / max(2 * np.sum(keep), 1e-300)))
-    mask = w > 0
-    scene_res = np.where(mask, R[:, 2:] / np.where(mask, w, 1.0), 0.0)
-    scene_rms = float(np.sqrt(np.sum(keep[:, None] * scene_res**2)
-                              / max(np.sum(keep[:, None] * mask), 1e-300)))
+    pix_rms, scene_rms = _residual_rms(lik, R, keep, w, sig)
     sigma_hat = float(sig * np.sqrt(red))
     # identifiability of the 8 paper parameters from the data alone (points reduced out
     # by the Schur complement, priors left out): square-root rows of that information
@@ -352,6 +360,22 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _residual_rms(lik, R, keep, w, sig):
+    """RMS of the inliers' pixel residuals (px) and scene residuals (mm) at the fit."""
+    R_px = R[:, :2]
+    if lik.px_white is not None:        # back to px: undo the per-point whitening
+        a, b, c = lik.px_white.T
+        rv = R_px[:, 1] / c
+        R_px = np.stack([(R_px[:, 0] - b * rv) / a, rv], axis=-1)
+    pix_rms = float(np.sqrt(np.sum(keep[:, None] * (R_px * sig) ** 2)
+                            / max(2 * np.sum(keep), 1e-300)))
+    mask = w > 0
+    scene_res = np.where(mask, R[:, 2:] / np.where(mask, w, 1.0), 0.0)
+    scene_rms = float(np.sqrt(np.sum(keep[:, None] * scene_res**2)
+                              / max(np.sum(keep[:, None] * mask), 1e-300)))
+    return pix_rms, scene_rms
 
 
 def _fitted_data(lik):

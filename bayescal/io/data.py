@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import InputError
 from .jsonfile import read_json, to_jsonable, write_json
-from .tables import LASER_COLUMNS, SIGMA_COLUMNS, Table, read_table
+from .tables import LASER_COLUMNS, PIXEL_COV_COLUMNS, SIGMA_COLUMNS, Table, read_table
 
 __all__ = ["InputError", "to_jsonable", "Table", "LaserData", "read_table", "load_laser_data",
            "load_pixels", "pixel_covariance", "load_calibration_data", "check_pixels_in_image",
@@ -69,6 +69,8 @@ class LaserData:
         Pixel noise from the file, px.
     pixel_table, point_table : Table
         Where the numbers came from (for messages).
+    pixel_cov : ndarray, shape (N, 2, 2) or None
+        Per-point pixel covariances from the columns ``cov_uu, cov_uv, cov_vv``, px^2.
     """
 
     pixels: np.ndarray
@@ -77,6 +79,7 @@ class LaserData:
     sigma_px: float | None
     pixel_table: Table
     point_table: Table | None
+    pixel_cov: np.ndarray | None = None
 
     @property
     def n_points(self):
@@ -120,10 +123,6 @@ def _sigma_px(tables):
     return value
 
 
-#: optional per-pixel covariance columns (px^2), as an image extractor writes them
-PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
-
-
 def load_pixels(path):
     """Read laser pixels ``u, v`` from a CSV or NPZ file.
 
@@ -135,32 +134,6 @@ def load_pixels(path):
     t = read_table(path, required=("u", "v"), optional=("x", "y", "z") + SIGMA_COLUMNS
                    + ("sigma_px",) + PIXEL_COV_COLUMNS + ("snr", "flagged"))
     return np.column_stack([t.columns["u"], t.columns["v"]]), t
-
-
-def pixel_covariance(table):
-    """The per-pixel covariances of a pixel table, shape (N, 2, 2) px^2, or None.
-
-    Raises
-    ------
-    InputError
-        Only some of ``cov_uu, cov_uv, cov_vv`` given, or a covariance that is not
-        positive definite (naming the line).
-    """
-    have = [c for c in PIXEL_COV_COLUMNS if c in table.columns]
-    if not have:
-        return None
-    if len(have) < 3:
-        raise InputError(f"{table.path}: per-pixel covariances need all of "
-                         f"{', '.join(PIXEL_COV_COLUMNS)}; found only {', '.join(have)}",
-                         path=str(table.path))
-    uu, uv, vv = (np.asarray(table.columns[c], float) for c in PIXEL_COV_COLUMNS)
-    bad = np.flatnonzero(~((uu > 0) & (vv > 0) & (uu * vv - uv * uv > 0)))
-    if bad.size:
-        line = int(table.lines[bad[0]])
-        raise InputError(f"{table.path}: line {line}: cov_uu, cov_uv, cov_vv = "
-                         f"{uu[bad[0]]:g}, {uv[bad[0]]:g}, {vv[bad[0]]:g} is not a positive "
-                         "definite covariance (px^2)", path=str(table.path), line=line)
-    return np.stack([np.stack([uu, uv], -1), np.stack([uv, vv], -1)], -2)
 
 
 def load_laser_data(path, points_path=None, *, need_points=True):
@@ -187,11 +160,11 @@ def load_laser_data(path, points_path=None, *, need_points=True):
     opt = SIGMA_COLUMNS + ("sigma_px",)
     if points_path is None:
         req = ("u", "v") + (("x", "y", "z") if need_points else ())
-        pt = read_table(path, required=req, optional=("x", "y", "z") + opt)
+        pt = read_table(path, required=req, optional=("x", "y", "z") + opt + PIXEL_COV_COLUMNS)
         qt = pt if all(c in pt.columns for c in "xyz") else None
         tables = [pt]
     else:
-        pt = read_table(path, required=("u", "v"), optional=("sigma_px",))
+        pt = read_table(path, required=("u", "v"), optional=("sigma_px",) + PIXEL_COV_COLUMNS)
         qt = read_table(points_path, required=("x", "y", "z"), optional=opt)
         if len(pt) != len(qt):
             raise InputError(f"{pt.path} has {len(pt)} points (u, v) but {qt.path} has "
@@ -205,7 +178,27 @@ def load_laser_data(path, points_path=None, *, need_points=True):
         if any(c in qt.columns for c in SIGMA_COLUMNS):
             sig = np.column_stack([qt.columns.get(c, np.full(len(qt), np.inf))
                                    for c in SIGMA_COLUMNS])
-    return LaserData(pixels, approx, sig, _sigma_px(tables), pt, qt)
+    return LaserData(pixels, approx, sig, _sigma_px(tables), pt, qt, pixel_covariance(pt))
+
+
+def pixel_covariance(table):
+    """The (N, 2, 2) pixel covariances (px^2) of ``cov_uu, cov_uv, cov_vv``, or None if absent;
+    an :class:`InputError` names the line of a covariance that is not positive definite."""
+    have = [c for c in PIXEL_COV_COLUMNS if c in table.columns]
+    if not have:
+        return None
+    if len(have) < 3:
+        missing = [c for c in PIXEL_COV_COLUMNS if c not in have]
+        raise InputError(f"{table.path}: column(s) {', '.join(missing)} missing; pixel "
+                         "covariances need all of cov_uu, cov_uv, cov_vv (px^2)",
+                         path=str(table.path), column=missing[0])
+    uu, uv, vv = (np.asarray(table.columns[c], float) for c in PIXEL_COV_COLUMNS)
+    ok = np.isfinite(uu) & np.isfinite(uv) & np.isfinite(vv) & (uu > 0) & (uu * vv - uv**2 > 0)
+    if not np.all(ok):
+        k = int(np.flatnonzero(~ok)[0])
+        raise table.error(k, "cov_uu", f"cov_uu, cov_uv, cov_vv = {uu[k]:g}, {uv[k]:g}, "
+                          f"{vv[k]:g} is not a positive definite covariance (px^2)")
+    return np.stack([np.stack([uu, uv], -1), np.stack([uv, vv], -1)], -2)
 
 
 def duplicate_rows(data):

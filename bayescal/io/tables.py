@@ -19,11 +19,13 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Table", "read_table", "LASER_COLUMNS", "SIGMA_COLUMNS"]
+__all__ = ["Table", "read_table", "LASER_COLUMNS", "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS"]
 
 LASER_COLUMNS = ("u", "v", "x", "y", "z")
 SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
-_KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane")
+#: per-point pixel covariances, px^2 (``bayescal extract`` writes them)
+PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
+_KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane") + PIXEL_COV_COLUMNS
 _STACKED = {"pixels": ("u", "v"), "approx_points": ("x", "y", "z"), "points": ("x", "y", "z"),
             "sigma_scene": SIGMA_COLUMNS}
 

@@ -10,7 +10,59 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grad_terms", "point_terms"]
+__all__ = ["grad_terms", "point_terms", "pixel_whitening", "whiten"]
+
+
+def pixel_whitening(pixel_cov, n):
+    """Per-point whitening of the pixel residuals from their covariances.
+
+    Parameters
+    ----------
+    pixel_cov : array_like, shape (n, 2, 2) or None
+        Pixel covariances, px^2 (symmetric positive definite).
+    n : int
+        Number of points.
+
+    Returns
+    -------
+    white : ndarray, shape (n, 3) or None
+        ``(a, b, c)`` of the upper-triangular ``L = [[a, b], [0, c]]`` with
+        ``L^T L = pixel_cov^-1``: whitened ``(ru, rv) -> (a ru + b rv, c rv)``.
+    log_det : ndarray, shape (n,) or float
+        ``log det L = -log det(pixel_cov) / 2`` (0.0 without covariances).
+    """
+    if pixel_cov is None:
+        return None, 0.0
+    cov = np.asarray(pixel_cov, dtype=float)
+    if cov.shape != (n, 2, 2):
+        raise ValueError(f"pixel_cov must have shape (N, 2, 2) = {(n, 2, 2)} px^2, got "
+                         f"{cov.shape}")
+    bad = ~np.all(np.isfinite(cov), axis=(1, 2)) | (np.abs(cov[:, 0, 1] - cov[:, 1, 0])
+                                                   > 1e-9 * np.abs(cov).max(axis=(1, 2)))
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
+    bad |= ~(cov[:, 0, 0] > 0) | ~(det > 0)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"pixel_cov must be symmetric positive definite; row {i} is "
+                         f"{cov[i].tolist()}")
+    prec = np.linalg.inv(cov)
+    a = np.sqrt(prec[:, 0, 0])
+    b = prec[:, 0, 1] / a
+    c = np.sqrt(prec[:, 1, 1] - b * b)
+    return np.stack([a, b, c], axis=-1), np.log(a * c)
+
+
+def whiten(white, r, axis=-1):
+    """Whitened pixel rows: ``r`` (..., N, 2) with (u, v) on ``axis`` (-1, or -2 for
+    Jacobians (..., N, 2, k)); ``white`` from :func:`pixel_whitening` (None: unchanged)."""
+    if white is None:
+        return r
+    r = np.moveaxis(np.asarray(r), axis, -1)
+    a, b, c = white[:, 0], white[:, 1], white[:, 2]
+    if axis != -1:
+        a, b, c = a[:, None], b[:, None], c[:, None]
+    out = np.stack([a * r[..., 0] + b * r[..., 1], c * r[..., 1]], axis=-1)
+    return np.moveaxis(out, -1, axis)
 
 
 def point_terms(lik, theta, x, y, sig, w):
@@ -35,12 +87,18 @@ def point_terms(lik, theta, x, y, sig, w):
     inv_s = 1.0 / sig[..., None]
     ru = (gu * mx + u0 - lik.pixels[:, 0]) * inv_s
     rv = (gv * my + v0 - lik.pixels[:, 1]) * inv_s
+    white = getattr(lik, "px_white", None)
     xr = xi / r
     dDx = xr * (x + z * gx) - gx
     dDy = xr * (y + z * gy) - gy
     a, b = gu * iD * inv_s, gv * iD * inv_s
     ux, uy = a * (1.0 - mx * dDx), -a * mx * dDy
     vx, vy = -b * my * dDx, b * (1.0 - my * dDy)
+    if white is not None:                                   # per-point pixel covariances
+        la, lb, lc = white[:, 0], white[:, 1], white[:, 2]
+        ru, rv = la * ru + lb * rv, lc * rv
+        ux, vx = la * ux + lb * vx, lc * vx
+        uy, vy = la * uy + lb * vy, lc * vy
     wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
     rx, ry, rz = (x - lik.approx[:, 0]) * wx, (y - lik.approx[:, 1]) * wy, \
         (z - lik.approx[:, 2]) * wz
@@ -95,6 +153,11 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
     inv_s = 1.0 / sig[..., None]
     ru = (gu * mx + u0 - lik.pixels[:, 0]) * inv_s
     rv = (gv * my + v0 - lik.pixels[:, 1]) * inv_s
+    white = getattr(lik, "px_white", None)
+    if white is not None:       # J^T L^T L r: the residual whitened, then L^T applied again
+        la, lb, lc = white[:, 0], white[:, 1], white[:, 2]
+        wu, wv = la * ru + lb * rv, lc * rv
+        ru, rv = la * wu, lb * wu + lc * wv
     wz = w[..., 2]
     rzw = wt * (z - lik.approx[:, 2]) * wz * wz           # r_z * d r_z / d z
     ru_w, rv_w = wt * ru, wt * rv
@@ -113,7 +176,8 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
         def tr_cinv(B):                                     # tr(C^-1 B) per point
             return (C11 * B[0] - 2 * C01 * B[1] + C00 * B[2]) / det
         if lik.infer_px:
-            out.append(np.sum(wt * (ru * ru + rv * rv) - 2.0 + tr_cinv(Cp), -1))
+            rr_p = ru * ru + rv * rv if white is None else wu * wu + wv * wv
+            out.append(np.sum(wt * rr_p - 2.0 + tr_cinv(Cp), -1))
         if lik.infer_scene:
             rr_s = ((x - lik.approx[:, 0]) * w[..., 0]) ** 2 \
                 + ((y - lik.approx[:, 1]) * w[..., 1]) ** 2 \

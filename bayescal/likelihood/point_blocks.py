@@ -27,7 +27,8 @@ BLOCK_ELEMENTS = 48_000
 MIN_BLOCK = 2048
 
 #: the per-point attributes of a LaserLikelihood (first axis N)
-_PER_POINT = ("pixels", "approx", "rho", "w_scene", "_scene_mask", "_n_rows", "_log_w_given")
+_PER_POINT = ("pixels", "approx", "rho", "w_scene", "_scene_mask", "_n_rows", "_log_w_given",
+              "px_white", "_px_log_det")
 _CACHE = "_point_block_cache"
 
 

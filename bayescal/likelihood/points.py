@@ -6,7 +6,7 @@ point, its scene coordinates ``q_i = (x_i, y_i)`` (the horizontal position
 where the ray meets the wall); the cone gives ``P_i = (x_i, y_i,
 rho_i / tan(beta) - h)``. The model (``docs/bayes.md``)::
 
-    pixels_i        ~ N(project(theta, P_i), sigma_px^2 I_2)
+    pixels_i        ~ N(project(theta, P_i), sigma_px^2 I_2)   (or sigma_px^2 pixel_cov_i)
     approx_points_i ~ N(P_i, diag(sigma_scene_i^2))       (inf = axis not used)
 
 Each point contributes five whitened residuals (two pixel, three scene rows),
@@ -26,7 +26,7 @@ from .._validation import as_pixels, as_points, check_positive
 from ..sensor.camera import project_theta
 from ..sensor.laser import cone_point_theta, triangulate_theta
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
-from .point_algebra import grad_terms, point_terms
+from .point_algebra import grad_terms, pixel_whitening, point_terms, whiten
 from .point_blocks import clear_blocks, concat_blocks, sum_blocks
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
 from .scene_noise import scene_range
@@ -68,6 +68,9 @@ class LaserLikelihood:
         reference prior for incidental parameters) cancels that term: the
         collapsed likelihood becomes the profile likelihood, whose score has
         zero mean. Default "jeffreys".
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances (px^2); noise ``sigma_px^2 pixel_cov_i``, residuals
+        whitened per point by ``L_i^T L_i = pixel_cov_i^-1`` (``docs/images.md``).
     outliers : bool
         If True, each point (its pixel and approximate point together) is an
         inlier with probability ``1 - w`` and an outlier with probability
@@ -88,7 +91,8 @@ class LaserLikelihood:
     """
 
     def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene, point_prior="jeffreys",
-                 outliers=False, outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+                 outliers=False, outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
+                 pixel_cov=None):
         if point_prior not in POINT_PRIORS:
             raise ValueError(f"point_prior must be one of {POINT_PRIORS}, got {point_prior!r}")
         self.point_prior = point_prior
@@ -108,9 +112,6 @@ class LaserLikelihood:
         self.sigma_px = None if self.infer_px else check_positive(sigma_px, "sigma_px")
         self.rho = np.hypot(self.approx[:, 0], self.approx[:, 1])
         if self.infer_scene:
-            if np.any(self.rho <= 0):
-                raise ValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
-                                 "scene error; give sigma_scene explicitly")
             self.rho = scene_range(self.approx)
             self.w_scene = None
             self._scene_mask = np.ones((self.n, 3), bool)
@@ -138,6 +139,7 @@ class LaserLikelihood:
                                              0.0).sum(axis=1)
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         self.ref_kappa = 0.05
+        self.px_white, self._px_log_det = pixel_whitening(pixel_cov, self.n)
 
     def __getstate__(self):
         state = self.__dict__.copy()        # the point blocks are a cache of views: rebuilt
@@ -192,7 +194,8 @@ class LaserLikelihood:
             log_w = np.log(w).sum(axis=-1)                      # every axis used
         else:
             log_w = self._log_w_given                           # constant: computed once
-        log_norm = -2.0 * np.log(sig)[..., None] + log_w - 0.5 * self._n_rows * _LOG2PI
+        log_norm = (-2.0 * np.log(sig)[..., None] + log_w - 0.5 * self._n_rows * _LOG2PI
+                    + self._px_log_det)
         return sig, w, log_norm
 
     @property
@@ -270,15 +273,17 @@ class LaserLikelihood:
         inv_s = 1.0 / np.asarray(sigma_px)[..., None, None]
         shape = uv.shape[:-1]
         R = np.empty(shape + (5,))
-        R[..., :2] = (uv - self.pixels) * inv_s
+        R[..., :2] = whiten(self.px_white, (uv - self.pixels) * inv_s)
         R[..., 2:] = (P - self.approx) * w_scene
         if not jacobian:
             return R
         Jq = np.empty(shape + (5, 2))
-        Jq[..., :2, :] = (dPp[..., :, :2] + dPp[..., :, 2:3] * dxy[..., 2:3, :]) * inv_s[..., None]
+        Jq[..., :2, :] = whiten(self.px_white, (dPp[..., :, :2] + dPp[..., :, 2:3]
+                                                * dxy[..., 2:3, :]) * inv_s[..., None], axis=-2)
         Jq[..., 2:, :] = dxy * w_scene[..., :, None]
         Jt = np.empty(shape + (5, 7))
-        Jt[..., :2, :] = (dthp + dPp[..., :, 2:3] * dthc[..., 2:3, :]) * inv_s[..., None]
+        Jt[..., :2, :] = whiten(self.px_white, (dthp + dPp[..., :, 2:3] * dthc[..., 2:3, :])
+                                * inv_s[..., None], axis=-2)
         Jt[..., 2:, :] = dthc * w_scene[..., :, None]
         return R, Jt, Jq
 

@@ -19,4 +19,7 @@ def scene_range(approx_points):
     one bad row the weight of hundreds.
     """
     rho = np.hypot(approx_points[..., 0], approx_points[..., 1])
+    if np.any(rho <= 0):
+        raise ValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
+                         "scene error; give sigma_scene explicitly")
     return np.maximum(rho, RHO_FLOOR * np.median(rho))

@@ -812,3 +812,22 @@ def test_reconstruct_frames_to_point_clouds(sim, seq_run, tmp_path):
     r = run("reconstruct", "f0.csv", "bad.csv", "--run", seq_run[0], "--out", "rec2",
             cwd=tmp_path)
     assert r.returncode == 2 and "cov_uv" in r.stderr and not (tmp_path / "rec2").exists()
+
+
+def test_reconstruct_an_image_frame(tmp_path):
+    """An image as a frame: the laser extractor's unflagged pixels, with their covariances,
+    reconstructed into a PLY."""
+    meshio = pytest.importorskip("meshio")
+    r = run("simulate", "--images", "--n-points", 60, "--range-mm", 2500, "--out", "sim",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run("calibrate", "sim/laser.csv", "--method", "simultaneous", "--out", "run",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run("reconstruct", "sim/image.png", "--run", "run", "--out", "rec", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    cloud = meshio.read(tmp_path / "rec" / "reconstruction.ply")
+    assert len(cloud.points) > 100 and np.mean(np.isfinite(cloud.point_data["cov_zz"])) > 0.9
+    (tmp_path / "broken.png").write_bytes(b"not an image")
+    r = run("reconstruct", "broken.png", "--run", "run", "--out", "rec2", cwd=tmp_path)
+    assert r.returncode == 2 and "broken.png" in r.stderr and not (tmp_path / "rec2").exists()

@@ -1,0 +1,112 @@
+"""The extractor against the renderer's truth: accuracy and honest covariances."""
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+
+
+def normal_errors(lp, truth):
+    """Signed error along the true ring's normal (px) and the sd the extractor gave it."""
+    T = truth.pixels
+    t = np.roll(T, -1, 0) - np.roll(T, 1, 0)
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    nrm = np.stack([t[:, 1], -t[:, 0]], -1)
+    k = np.argmin(np.sum((lp.pixels[:, None, :] - T[None]) ** 2, -1), 1)
+    e = np.sum((lp.pixels - T[k]) * nrm[k], 1)
+    sd = np.sqrt(np.einsum("ni,nij,nj->n", nrm[k], lp.covariance, nrm[k]))
+    return e, sd
+
+
+def stats(lp, truth):
+    e, sd = normal_errors(lp, truth)
+    ok = ~lp.flagged
+    gross = np.abs(e) > 1.0
+    med = np.median(e[ok])
+    good = ok & ~gross
+    return dict(bias=med, rsd=1.4826 * np.median(np.abs(e[ok] - med)),
+                gross=np.mean(gross & ok), zrms=np.sqrt(np.mean((e[good] / sd[good]) ** 2)),
+                n=len(e))
+
+
+def render(range_mm, seed, **kw):
+    return bc.render_image(bc.SensorParams.paper(), bc.room_walls(range_mm), rng=seed, **kw)
+
+
+@pytest.mark.parametrize("range_mm", [1000, 2500, 5000])
+def test_accuracy_with_distractors_and_laser_off_image(range_mm):
+    # Targets: bias <= 0.1 px, robust sd <= 0.25 px, <= 2 % unflagged gross errors.
+    # Measured over seeds 0-5 with 4 lamps (docs/images.md): robust sd 0.07-0.13 px,
+    # |bias| <= 0.016 px, unflagged gross errors 0-2.2 % (one image of 18 above 2 %).
+    img, truth = render(range_mm, 11, n_lamps=4, ghost=0.3, with_background=True)
+    lp = bc.extract_laser(img, background=truth.background)
+    s = stats(lp, truth)
+    assert s["n"] > 200
+    assert abs(s["bias"]) <= 0.1
+    assert s["rsd"] <= 0.25
+    assert s["gross"] <= 0.02
+
+
+def test_covariance_is_honest_pooled_over_ranges():
+    # z-scores along the normal over ~800 points of three ranges: rms in 0.8-1.25
+    # (the sampling sd of an rms of 800 unit normals is 0.025, so a true 1.0-1.1
+    # fails this band with probability < 1e-6; the band is the issue's target)
+    e_all, sd_all = [], []
+    for range_mm in (1000, 2500, 5000):
+        img, truth = render(range_mm, 21, n_lamps=2, ghost=0.3, with_background=True)
+        lp = bc.extract_laser(img, background=truth.background)
+        e, sd = normal_errors(lp, truth)
+        good = ~lp.flagged & (np.abs(e) < 1.0)
+        e_all.append(e[good])
+        sd_all.append(sd[good])
+    z = np.concatenate(e_all) / np.concatenate(sd_all)
+    assert 0.8 <= np.sqrt(np.mean(z ** 2)) <= 1.25
+
+
+def test_plain_walls_without_laser_off_image():
+    img, truth = render(2500, 5, texture=0.0)
+    lp = bc.extract_laser(img)
+    s = stats(lp, truth)
+    assert abs(s["bias"]) <= 0.1 and s["rsd"] <= 0.25 and s["gross"] <= 0.05
+
+
+def test_given_center_colour_and_16_bit():
+    img, truth = render(2500, 7, bits=16, with_background=True)
+    rgb = np.stack([img, img // 4, img // 8], axis=-1)
+    bg = np.stack([truth.background] * 3, axis=-1)
+    lp = bc.extract_laser(rgb, background=bg, center=(400.0, 300.0), n_azimuth=360)
+    assert len(lp) <= 360 and lp.covariance.shape == (len(lp), 2, 2)
+    np.testing.assert_allclose(lp.center, [400.0, 300.0])
+    s = stats(lp, truth)
+    assert abs(s["bias"]) <= 0.1 and s["rsd"] <= 0.25
+    # the covariance is large along the ring, small across it
+    ev = np.linalg.eigvalsh(lp.covariance)
+    assert np.all(ev[:, 1] > 20 * ev[:, 0])
+
+
+def test_read_image_png_and_tiff(tmp_path):
+    iio = pytest.importorskip("imageio.v3")
+    img, truth = render(2500, 8, bits=16)
+    iio.imwrite(tmp_path / "a.tif", img)
+    iio.imwrite(tmp_path / "a.png", (img // 256).astype(np.uint8))
+    np.testing.assert_array_equal(bc.read_image(tmp_path / "a.tif"), img.astype(float))
+    lp = bc.extract_laser(bc.read_image(tmp_path / "a.png"))
+    assert stats(lp, truth)["rsd"] <= 0.25
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(image=np.zeros((5, 5))), "image must have shape"),
+    (dict(image=np.zeros((40, 40), dtype=bool)), "numeric"),
+    (dict(image=np.zeros((40, 40)), center=(1.0,)), "center"),
+    (dict(image=np.zeros((40, 40)), background=np.zeros((30, 30))), "background"),
+    (dict(image=np.zeros((40, 40, 3)), channel=5), "channel"),
+])
+def test_bad_input(bad, match):
+    image = bad.pop("image")
+    with pytest.raises((ValueError, TypeError), match=match):
+        bc.extract_laser(image, **bad)
+
+
+def test_read_image_missing(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        bc.read_image(tmp_path / "nope.png")
