@@ -29,6 +29,7 @@ from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from .sensor.pose import LaserPose
 
 __version__ = "0.1.0"
 
@@ -36,6 +37,7 @@ __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
     "SensorParams",
+    "LaserPose",
     "project",
     "backproject",
     "triangulate",

@@ -19,6 +19,7 @@ import numpy as np
 from .._validation import as_finite_array, as_pixels
 from .camera import backproject_theta
 from .parameters import as_param_array, to_identifiable
+from .pose import as_pose_array, triangulate_pose_theta
 
 __all__ = [
     "cone_point",
@@ -139,7 +140,7 @@ def triangulate_theta(theta, pixels, *, jacobian=False):
     return pts, valid, dpix, dth
 
 
-def triangulate(params, pixels, *, return_valid=False):
+def triangulate(params, pixels, *, laser=None, return_valid=False):
     """Reconstruct laser pixels as 3D points on the laser cone.
 
     Each pixel is back-projected to a ray from the mirror focus and
@@ -150,6 +151,10 @@ def triangulate(params, pixels, *, return_valid=False):
     params : SensorParams or ndarray, shape (..., 8)
     pixels : array_like, shape (..., 2)
         ``(u, v)`` in px.
+    laser : LaserPose or array_like, shape (..., 4), optional
+        Tilt (rad) and offset (mm) of the cone, ``(tilt_x, tilt_y, offset_x,
+        offset_y)`` (:mod:`bayescal.sensor.pose`). None or all zero: the
+        paper's aligned cone, computed by its own closed form.
     return_valid : bool, optional
         Also return the mask of pixels whose ray meets the lit nappe of the cone.
 
@@ -163,7 +168,11 @@ def triangulate(params, pixels, *, return_valid=False):
     """
     theta = to_identifiable(as_param_array(params))
     pixels = as_pixels(pixels)
-    pts, valid = triangulate_theta(theta, pixels)
+    pose = None if laser is None else as_pose_array(laser)
+    if pose is None or not np.any(pose):
+        pts, valid = triangulate_theta(theta, pixels)
+    else:
+        pts, valid = triangulate_pose_theta(theta, pose, pixels)
     return (pts, valid) if return_valid else pts
 
 
