@@ -25,7 +25,14 @@ import numpy as np
 
 from .camera import backproject_theta
 
-__all__ = ["LaserPose", "POSE_NAMES", "as_pose_array", "pose_rotation", "triangulate_pose_theta"]
+__all__ = [
+    "LaserPose",
+    "POSE_NAMES",
+    "as_pose_array",
+    "pose_rotation",
+    "triangulate_pose_theta",
+    "cone_point_pose_theta",
+]
 
 POSE_NAMES = ("tilt_x", "tilt_y", "offset_x", "offset_y")
 
@@ -238,3 +245,77 @@ def _pose_jacobians(out, t, d, Q, R, dR, T, A):
     dfdpose = np.concatenate([dfdtilt, -gC[..., :2]], -1)
     dpose = d[..., :, None] * (inv[..., None] * dfdpose)[..., None, :]
     return dpix, dth, dpose
+
+
+def cone_point_pose_theta(theta, pose, xy, *, jacobian=False):
+    """Point of the tilted cone's lit nappe above the scene position ``xy`` (internal).
+
+    The vertical line through ``(x, y)`` meets the double cone twice; the lit
+    nappe is the upper crossing, the larger root of ``A2 z^2 + 2 B z + C = 0``
+    (``o = R.T ((x, y, 0) - A)``, ``e = R.T (0, 0, 1)``), taken in the form that
+    does not cancel. With the pose zero this is ``rho / tan(beta) - h``.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (..., 7)
+        Identifiable parameters; only ``h`` and ``beta`` are used.
+    pose : ndarray, shape (..., 4)
+    xy : ndarray, shape (..., 2)
+        Horizontal position in frame C, mm.
+    jacobian : bool
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+        mm; z is NaN where the line misses the lit nappe.
+    d_xy, d_theta, d_pose : ndarray, shapes (..., 3, 2), (..., 3, 7), (..., 3, 4)
+        Only with ``jacobian=True`` (only row 2, z, is non-zero beyond d_xy's identity).
+    """
+    theta = np.asarray(theta, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    xy = np.asarray(xy, dtype=float)
+    h, T = theta[..., 5], np.tan(theta[..., 6])
+    x, y = xy[..., 0], xy[..., 1]
+    W0 = np.stack(np.broadcast_arrays(x - pose[..., 2], y - pose[..., 3], h), -1)
+    rot = pose_rotation(pose, jacobian=jacobian)
+    R = rot[0] if jacobian else rot
+    o = (W0[..., None, :] @ R)[..., 0, :]                # R.T @ W0
+    e = R[..., 2, :]                                      # R.T @ (0, 0, 1)
+    T2 = T * T
+    A2 = T2 * e[..., 2] ** 2 - e[..., 0] ** 2 - e[..., 1] ** 2
+    B = T2 * o[..., 2] * e[..., 2] - o[..., 0] * e[..., 0] - o[..., 1] * e[..., 1]
+    C = T2 * o[..., 2] ** 2 - o[..., 0] ** 2 - o[..., 1] ** 2
+    disc = B * B - A2 * C
+    sq = np.sqrt(np.where(disc >= 0, disc, np.nan))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(B <= 0, (-B + sq) / A2, C / (-B - sq))
+        Qz = o[..., 2] + z * e[..., 2]
+        z = np.where((A2 > 0) & (Qz > 0), z, np.nan)
+    pts = np.stack(np.broadcast_arrays(x, y, z), -1)
+    if not jacobian:
+        return pts
+    return (pts,) + _cone_point_jacobians(pts, o + z[..., None] * e, R, rot[1], T, W0, z)
+
+
+def _cone_point_jacobians(pts, Q, R, dR, T, W0, z):
+    """Implicit-function derivatives of z in :func:`cone_point_pose_theta`."""
+    gQ = np.stack([-2 * Q[..., 0], -2 * Q[..., 1], 2 * T * T * Q[..., 2]], -1)
+    gC = (R @ gQ[..., None])[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = -1.0 / gC[..., 2]
+    shape = pts.shape[:-1]
+    dxy = np.zeros(shape + (3, 2))
+    dxy[..., 0, 0] = 1.0
+    dxy[..., 1, 1] = 1.0
+    dxy[..., 2, :] = inv[..., None] * gC[..., :2]
+    dth = np.zeros(shape + (3, 7))
+    dth[..., 2, 5] = inv * gC[..., 2]
+    dth[..., 2, 6] = inv * 2 * T * Q[..., 2] ** 2 * (1.0 + T * T)
+    W = W0.copy()
+    W[..., 2] = W0[..., 2] + z                          # P - A
+    dfdtilt = np.stack([np.sum(gQ * (np.swapaxes(dR[..., k, :, :], -1, -2)
+                                     @ W[..., None])[..., 0], -1) for k in range(2)], -1)
+    dpose = np.zeros(shape + (3, 4))
+    dpose[..., 2, :2] = inv[..., None] * dfdtilt
+    dpose[..., 2, 2:] = -inv[..., None] * gC[..., :2]
+    return dxy, dth, dpose

@@ -138,3 +138,40 @@ def test_broadcasts_over_walkers_and_points(sensor, rng):
     assert pts.shape == (5, 30, 3) and valid.all()
     for w in range(5):
         np.testing.assert_array_equal(pts[w], triangulate_pose_theta(th, poses[w, 0], pix)[0])
+
+
+@pytest.mark.parametrize("pose", POSES)
+def test_cone_point_is_on_the_tilted_cone(sensor, rng, pose):
+    from bayescal.sensor.pose import cone_point_pose_theta
+
+    az = rng.uniform(0, 2 * np.pi, 100)
+    xy = rng.uniform(300, 3000, 100)[:, None] * np.column_stack([np.cos(az), np.sin(az)])
+    th = to_identifiable(sensor.to_array())
+    pose = np.asarray(pose, dtype=float)
+    pts, dxy, dth, dpose = cone_point_pose_theta(th, pose, xy, jacobian=True)
+    np.testing.assert_array_equal(pts[:, :2], xy)
+    if not pose.any():
+        np.testing.assert_allclose(pts, bc.cone_point(sensor, xy), rtol=1e-12, atol=1e-9)
+    lp = bc.LaserPose(*pose, h=sensor.h)
+    Q = (pts - lp.apex) @ lp.rotation
+    assert (Q[:, 2] > 0).all()
+    np.testing.assert_allclose(np.hypot(Q[:, 0], Q[:, 1]), Q[:, 2] * np.tan(sensor.beta),
+                               rtol=1e-10)
+    # the pixel of a tilted-cone point triangulates back onto it
+    pix = bc.project(sensor, pts)
+    np.testing.assert_allclose(bc.triangulate(sensor, pix, laser=pose), pts, rtol=1e-8)
+
+    def fd(fun, x, k, eps):
+        e = np.zeros_like(x)
+        e[..., k] = eps
+        return (fun(x + e) - fun(x - e)) / (2 * eps)
+
+    for k in range(4):
+        num = fd(lambda q: cone_point_pose_theta(th, q, xy), pose, k, 1e-6)
+        np.testing.assert_allclose(dpose[..., k], num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
+    for k in (5, 6):
+        num = fd(lambda t: cone_point_pose_theta(t, pose, xy), th, k, 1e-6 * max(1, th[k]))
+        np.testing.assert_allclose(dth[..., k], num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
+    for k in range(2):
+        num = fd(lambda q: cone_point_pose_theta(th, pose, q), xy, k, 1e-4)
+        np.testing.assert_allclose(dxy[..., k], num, rtol=1e-5, atol=1e-7)
