@@ -20,6 +20,7 @@ import numpy as np
 from .._validation import check_positive, resolve_rng
 from ..sensor.camera import project_theta
 from ..sensor.parameters import SensorParams, to_identifiable
+from ..sensor.pose import LaserPose, cone_point_pose_theta
 from .floorplan import FloorPlan
 
 __all__ = ["Dataset", "CalibrationData", "simulate_room", "room_walls", "rotation_matrix",
@@ -118,6 +119,8 @@ class Dataset:
         ``"wall"`` model: the very errors of the approximate points, the same
         rough measurement), each orientation off by one draw of
         ``plan_angle_sd``; those sds are the plan's.
+    laser : LaserPose
+        The true pose of the laser cone (zero: the paper's aligned cone).
     """
 
     params: SensorParams
@@ -135,6 +138,7 @@ class Dataset:
     approx_model: str
     nominal: SensorParams = field(default_factory=SensorParams.paper)
     floor_plan: FloorPlan | None = None
+    laser: LaserPose = field(default_factory=LaserPose)
 
     @property
     def n_points(self):
@@ -184,7 +188,7 @@ def _cone_z(rho, params):
 
 
 def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
-                 n_grid, n_laser, rng):
+                 n_grid, n_laser, rng, laser=None):
     """Four planes x = +-d, y = +-d (in W) with grid points and the laser curve."""
     angles = np.array([0.01, -0.015, 0.02])
     translation = np.array([5.0, -8.0, 12.0])
@@ -217,6 +221,9 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
     cone_dir = np.stack([np.sin(params.beta) * np.cos(az), np.sin(params.beta) * np.sin(az),
                          np.full_like(az, np.cos(params.beta))], axis=-1)
     apex = np.array([0.0, 0.0, -params.h])
+    if laser is not None and not laser.is_aligned:
+        cone_dir = cone_dir @ laser.rotation.T
+        apex = np.array([laser.offset_x, laser.offset_y, -params.h])
     # ray apex + t dir meets plane n.P + off = 0 at t = -(n.apex + off) / n.dir
     with np.errstate(divide="ignore"):
         tt = -(normals_c @ apex + offs_c)[None, :] / (cone_dir @ normals_c.T)
@@ -234,7 +241,7 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
 def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.5,
                   approx_error=0.0, sigma_3d=0.0, approx_model="fig9", nominal=None,
                   calib_distance_mm=None, n_grid=7, n_calib_laser=80, plan_angle_sd=0.01,
-                  rng=None):
+                  tilt=(0.0, 0.0), offset=(0.0, 0.0), rng=None):
     """Simulate the paper's room: laser points, their pixels and approximate 3D points.
 
     Parameters
@@ -280,6 +287,13 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         sd (rad) of each wall's orientation in ``ds.floor_plan`` (default 0.01
         rad, about half a degree: a wall's direction read off a drawing or
         squared with a tape).
+    tilt : (float, float), optional
+        True tilt ``(tilt_x, tilt_y)`` of the laser cone's axis, rad
+        (:class:`~bayescal.LaserPose`; ``docs/conventions.md``).
+    offset : (float, float), optional
+        True lateral offset ``(offset_x, offset_y)`` of the cone's apex, mm. With
+        tilt and offset zero (the default) the dataset is the aligned one, the
+        same for the same seed as without these arguments.
     rng : numpy.random.Generator, int or None
         Randomness; the same seed gives the same dataset.
 
@@ -311,16 +325,16 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     calib_distance = (0.8 * range_mm if calib_distance_mm is None
                       else check_positive(calib_distance_mm, "calib_distance_mm"))
     plan_angle_sd = check_positive(plan_angle_sd, "plan_angle_sd")
+    laser = _pose_from(tilt, offset)
     ss = np.random.SeedSequence(resolve_rng(rng).integers(2**63))
     rng_pix, rng_approx, rng_cal = (np.random.default_rng(s) for s in ss.spawn(3))
     rng_plan = np.random.default_rng(ss.spawn(1)[0])    # 4th child: earlier streams unchanged
-
     walls = room_walls(range_mm, n_walls)
     az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
     rho, wall_idx = _ray_polygon_distance(az, walls)
     xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
-    points = np.column_stack([xy, _cone_z(rho, params)])
     theta = to_identifiable(params.to_array())
+    points = _room_points(xy, rho, params, theta, laser)
     pixels_true, _ = project_theta(theta, points)
     pixels = pixels_true + rng_pix.normal(0.0, sigma_px, pixels_true.shape)
 
@@ -348,12 +362,39 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
                              plan_eps if approx_model == "wall" else None)
     calib = _calibration(params, calib_distance=calib_distance, sigma_px=sigma_px,
                          sigma_3d=sigma_3d, approx_error=approx_error, n_grid=int(n_grid),
-                         n_laser=int(n_calib_laser), rng=rng_cal)
+                         n_laser=int(n_calib_laser), rng=rng_cal, laser=laser)
     return Dataset(params=params, pixels=pixels, pixels_true=pixels_true, points=points,
                    approx_points=approx, sigma_scene=sigma_scene, walls=walls, calibration=calib,
                    sigma_px=sigma_px, sigma_3d=sigma_3d, approx_error=approx_error,
                    range_mm=range_mm, approx_model=approx_model, nominal=nominal,
-                   floor_plan=floor_plan)
+                   floor_plan=floor_plan, laser=laser)
+
+
+def _room_points(xy, rho, params, theta, laser):
+    """Points of the (possibly tilted) cone above the wall positions ``xy``, (N, 3) mm."""
+    if laser.is_aligned:
+        return np.column_stack([xy, _cone_z(rho, params)])
+    points = cone_point_pose_theta(theta, laser.to_array(), xy)
+    if not np.all(np.isfinite(points)):
+        raise ValueError(f"laser pose {laser}: the tilted laser cone does not reach every "
+                         "wall of this room (its rays pass above it)")
+    return points
+
+
+def _pose_from(tilt, offset):
+    """``tilt`` (rad) and ``offset`` (mm) pairs as a :class:`LaserPose`, checked."""
+    pairs = {}
+    for name, value in (("tilt", tilt), ("offset", offset)):
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise TypeError(f"{name} must be a pair of numbers, got {value!r}") from None
+        if a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} must be a finite pair (x, y), got {value!r}")
+        pairs[name] = a
+    if np.any(np.abs(pairs["tilt"]) >= np.pi / 4):
+        raise ValueError(f"tilt must be below pi/4 rad in each component, got {tilt!r}")
+    return LaserPose(*pairs["tilt"], *pairs["offset"])
 
 
 def _rough_plan(walls, approx_error, angle_sd, rng, rel_eps=None):
