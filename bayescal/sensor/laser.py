@@ -19,7 +19,7 @@ import numpy as np
 from .._validation import as_finite_array, as_pixels
 from .camera import backproject_theta
 from .parameters import as_param_array, to_identifiable
-from .pose import as_pose_array, triangulate_pose_theta
+from .pose import as_pose_array, cone_point_pose_theta, triangulate_pose_theta
 
 __all__ = [
     "cone_point",
@@ -74,7 +74,7 @@ def cone_point_theta(theta, xy, *, jacobian=False):
     return pts, dxy, dth
 
 
-def cone_point(params, xy):
+def cone_point(params, xy, *, laser=None):
     """Point of the laser cone above horizontal position(s) ``xy``.
 
     Parameters
@@ -82,15 +82,21 @@ def cone_point(params, xy):
     params : SensorParams or ndarray, shape (..., 8)
     xy : array_like, shape (..., 2)
         Horizontal position ``(x, y)`` in frame C, mm.
+    laser : LaserPose or array_like, shape (..., 4), optional
+        Tilt (rad) and offset (mm) of the cone; None or zero: the aligned cone.
 
     Returns
     -------
     ndarray, shape (..., 3)
-        ``(x, y, rho / tan(beta) - h)`` in mm.
+        ``(x, y, rho / tan(beta) - h)`` in mm for the aligned cone; with a pose,
+        z on the tilted cone's lit nappe (NaN where the vertical line misses it).
     """
     theta = to_identifiable(as_param_array(params))
     xy = as_finite_array(xy, "xy", last_dim=2)
-    return cone_point_theta(theta, xy)
+    pose = None if laser is None else as_pose_array(laser)
+    if pose is None or not np.any(pose):
+        return cone_point_theta(theta, xy)
+    return cone_point_pose_theta(theta, pose, xy)
 
 
 def triangulate_theta(theta, pixels, *, jacobian=False):

@@ -150,6 +150,7 @@ def test_cone_point_is_on_the_tilted_cone(sensor, rng, pose):
     pose = np.asarray(pose, dtype=float)
     pts, dxy, dth, dpose = cone_point_pose_theta(th, pose, xy, jacobian=True)
     np.testing.assert_array_equal(pts[:, :2], xy)
+    np.testing.assert_allclose(bc.cone_point(sensor, xy, laser=pose), pts, rtol=1e-12, atol=1e-9)
     if not pose.any():
         np.testing.assert_allclose(pts, bc.cone_point(sensor, xy), rtol=1e-12, atol=1e-9)
     lp = bc.LaserPose(*pose, h=sensor.h)
