@@ -20,7 +20,7 @@ import numpy as np
 from .._validation import check_positive, resolve_rng
 from ..sensor.camera import project_theta
 from ..sensor.parameters import SensorParams, to_identifiable
-from ..sensor.pose import LaserPose
+from ..sensor.pose import LaserPose, cone_point_pose_theta
 from .floorplan import FloorPlan
 
 __all__ = ["Dataset", "CalibrationData", "simulate_room", "room_walls", "rotation_matrix",
@@ -73,13 +73,6 @@ class CalibrationData:
         True 3D laser points on the calibration planes, in C, mm.
     laser_plane : ndarray of int, shape (K,)
         Index of the plane each laser pixel falls on.
-
-    Examples
-    --------
-    >>> import bayescal as bc
-    >>> cal = bc.simulate_room(range_mm=1000, n_points=50, sigma_px=0.2, rng=0).calibration
-    >>> cal.grid_pixels.shape[-1], cal.laser_pixels.shape[-1]
-    (2, 2)
     """
 
     angles: np.ndarray
@@ -126,15 +119,8 @@ class Dataset:
         ``"wall"`` model: the very errors of the approximate points, the same
         rough measurement), each orientation off by one draw of
         ``plan_angle_sd``; those sds are the plan's.
-    laser_pose : LaserPose
-        The true pose of the laser cone (aligned unless ``tilt``/``offset`` were given).
-
-    Examples
-    --------
-    >>> import bayescal as bc
-    >>> ds = bc.simulate_room(range_mm=1000, n_points=50, sigma_px=0.2, rng=0)
-    >>> ds.pixels.shape, ds.points.shape, ds.n_points
-    ((50, 2), (50, 3), 50)
+    laser : LaserPose
+        The true pose of the laser cone (zero: the paper's aligned cone).
     """
 
     params: SensorParams
@@ -152,7 +138,7 @@ class Dataset:
     approx_model: str
     nominal: SensorParams = field(default_factory=SensorParams.paper)
     floor_plan: FloorPlan | None = None
-    laser_pose: LaserPose | None = None
+    laser: LaserPose = field(default_factory=LaserPose)
 
     @property
     def n_points(self):
@@ -170,12 +156,6 @@ def room_walls(range_mm, n_walls=7):
     Returns
     -------
     ndarray, shape (n_walls, 2, 2)
-
-    Examples
-    --------
-    >>> import bayescal as bc
-    >>> bc.room_walls(1000).shape                # 7 walls, each two (x, y) end points
-    (7, 2, 2)
     """
     range_mm = check_positive(range_mm, "range_mm")
     if int(n_walls) != n_walls or n_walls < 3:
@@ -207,40 +187,8 @@ def _cone_z(rho, params):
     return rho / np.tan(params.beta) - params.h
 
 
-def _pose(tilt, offset, params):
-    tilt, offset = (np.asarray(v, dtype=float).ravel() for v in (tilt, offset))
-    if tilt.shape != (2,) or offset.shape != (2,):
-        raise ValueError(f"tilt and offset must be pairs (x, y), got {tilt.tolist()} and "
-                         f"{offset.tolist()}")
-    return LaserPose(*map(float, tilt), *map(float, offset), h=params.h)
-
-
-def _laser_points(params, pose, n_points, walls):
-    """The true laser points (N, 3) on the walls and each one's wall index."""
-    if not pose.aligned:        # a misaligned cone: the same walls, other points on them
-        return _tilted_points(params, pose, n_points, walls)
-    az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
-    rho, wall_idx = _ray_polygon_distance(az, walls)
-    xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
-    return np.column_stack([xy, _cone_z(rho, params)]), wall_idx
-
-
-def _tilted_points(params, pose, n_points, walls):
-    """Points where a tilted, offset cone's generatrices meet the walls: (N, 3), wall index.
-
-    The generatrices are taken at ``n_points`` azimuths about the cone's own axis; each
-    meets the first wall its horizontal direction reaches from the apex."""
-    phi = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
-    g = pose.generatrix(params.beta, phi)                               # (N, 3)
-    gh = np.hypot(g[:, 0], g[:, 1])
-    origin = np.array([pose.offset_x, pose.offset_y])
-    t, wall_idx = _ray_polygon_distance(np.arctan2(g[:, 1], g[:, 0]), walls - origin)
-    return np.array([pose.offset_x, pose.offset_y, -params.h]) + (t / gh)[:, None] * g, \
-        wall_idx
-
-
 def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
-                 n_grid, n_laser, rng):
+                 n_grid, n_laser, rng, laser=None):
     """Four planes x = +-d, y = +-d (in W) with grid points and the laser curve."""
     angles = np.array([0.01, -0.015, 0.02])
     translation = np.array([5.0, -8.0, 12.0])
@@ -273,6 +221,9 @@ def _calibration(params, *, calib_distance, sigma_px, sigma_3d, approx_error,
     cone_dir = np.stack([np.sin(params.beta) * np.cos(az), np.sin(params.beta) * np.sin(az),
                          np.full_like(az, np.cos(params.beta))], axis=-1)
     apex = np.array([0.0, 0.0, -params.h])
+    if laser is not None and not laser.is_aligned:
+        cone_dir = cone_dir @ laser.rotation.T
+        apex = np.array([laser.offset_x, laser.offset_y, -params.h])
     # ray apex + t dir meets plane n.P + off = 0 at t = -(n.apex + off) / n.dir
     with np.errstate(divide="ignore"):
         tt = -(normals_c @ apex + offs_c)[None, :] / (cone_dir @ normals_c.T)
@@ -337,14 +288,12 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
         rad, about half a degree: a wall's direction read off a drawing or
         squared with a tape).
     tilt : (float, float), optional
-        ``(tilt_x, tilt_y)`` of the laser cone's axis, rad (default aligned; convention in
-        :class:`~bayescal.LaserPose`).
+        True tilt ``(tilt_x, tilt_y)`` of the laser cone's axis, rad
+        (:class:`~bayescal.LaserPose`; ``docs/conventions.md``).
     offset : (float, float), optional
-        ``(offset_x, offset_y)`` of its apex, mm. With either non-zero the laser points
-        are where the misaligned cone meets the walls, while the approximate points of the
-        ``fig9`` and ``wall`` models still take z from the nominal *aligned* cone, as a
-        user who assumes the paper's model would; the sequential method's calibration
-        patterns stay aligned.
+        True lateral offset ``(offset_x, offset_y)`` of the cone's apex, mm. With
+        tilt and offset zero (the default) the dataset is the aligned one, the
+        same for the same seed as without these arguments.
     rng : numpy.random.Generator, int or None
         Randomness; the same seed gives the same dataset.
 
@@ -376,15 +325,16 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     calib_distance = (0.8 * range_mm if calib_distance_mm is None
                       else check_positive(calib_distance_mm, "calib_distance_mm"))
     plan_angle_sd = check_positive(plan_angle_sd, "plan_angle_sd")
+    laser = _pose_from(tilt, offset)
     ss = np.random.SeedSequence(resolve_rng(rng).integers(2**63))
     rng_pix, rng_approx, rng_cal = (np.random.default_rng(s) for s in ss.spawn(3))
     rng_plan = np.random.default_rng(ss.spawn(1)[0])    # 4th child: earlier streams unchanged
-
     walls = room_walls(range_mm, n_walls)
-    pose = _pose(tilt, offset, params)
-    points, wall_idx = _laser_points(params, pose, n_points, walls)
-    xy = points[:, :2]
+    az = np.linspace(0, 2 * np.pi, n_points, endpoint=False) + np.pi / n_points
+    rho, wall_idx = _ray_polygon_distance(az, walls)
+    xy = rho[:, None] * np.stack([np.cos(az), np.sin(az)], axis=-1)
     theta = to_identifiable(params.to_array())
+    points = _room_points(xy, rho, params, theta, laser)
     pixels_true, _ = project_theta(theta, points)
     pixels = pixels_true + rng_pix.normal(0.0, sigma_px, pixels_true.shape)
 
@@ -412,12 +362,39 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
                              plan_eps if approx_model == "wall" else None)
     calib = _calibration(params, calib_distance=calib_distance, sigma_px=sigma_px,
                          sigma_3d=sigma_3d, approx_error=approx_error, n_grid=int(n_grid),
-                         n_laser=int(n_calib_laser), rng=rng_cal)
+                         n_laser=int(n_calib_laser), rng=rng_cal, laser=laser)
     return Dataset(params=params, pixels=pixels, pixels_true=pixels_true, points=points,
                    approx_points=approx, sigma_scene=sigma_scene, walls=walls, calibration=calib,
                    sigma_px=sigma_px, sigma_3d=sigma_3d, approx_error=approx_error,
                    range_mm=range_mm, approx_model=approx_model, nominal=nominal,
-                   floor_plan=floor_plan, laser_pose=pose)
+                   floor_plan=floor_plan, laser=laser)
+
+
+def _room_points(xy, rho, params, theta, laser):
+    """Points of the (possibly tilted) cone above the wall positions ``xy``, (N, 3) mm."""
+    if laser.is_aligned:
+        return np.column_stack([xy, _cone_z(rho, params)])
+    points = cone_point_pose_theta(theta, laser.to_array(), xy)
+    if not np.all(np.isfinite(points)):
+        raise ValueError(f"laser pose {laser}: the tilted laser cone does not reach every "
+                         "wall of this room (its rays pass above it)")
+    return points
+
+
+def _pose_from(tilt, offset):
+    """``tilt`` (rad) and ``offset`` (mm) pairs as a :class:`LaserPose`, checked."""
+    pairs = {}
+    for name, value in (("tilt", tilt), ("offset", offset)):
+        try:
+            a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise TypeError(f"{name} must be a pair of numbers, got {value!r}") from None
+        if a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} must be a finite pair (x, y), got {value!r}")
+        pairs[name] = a
+    if np.any(np.abs(pairs["tilt"]) >= np.pi / 4):
+        raise ValueError(f"tilt must be below pi/4 rad in each component, got {tilt!r}")
+    return LaserPose(*pairs["tilt"], *pairs["offset"])
 
 
 def _rough_plan(walls, approx_error, angle_sd, rng, rel_eps=None):

@@ -19,6 +19,7 @@ import numpy as np
 from .._validation import as_finite_array, as_pixels
 from .camera import backproject_theta
 from .parameters import as_param_array, to_identifiable
+from .pose import as_pose_array, cone_point_pose_theta, triangulate_pose_theta
 
 __all__ = [
     "cone_point",
@@ -73,7 +74,7 @@ def cone_point_theta(theta, xy, *, jacobian=False):
     return pts, dxy, dth
 
 
-def cone_point(params, xy):
+def cone_point(params, xy, *, laser=None):
     """Point of the laser cone above horizontal position(s) ``xy``.
 
     Parameters
@@ -81,11 +82,14 @@ def cone_point(params, xy):
     params : SensorParams or ndarray, shape (..., 8)
     xy : array_like, shape (..., 2)
         Horizontal position ``(x, y)`` in frame C, mm.
+    laser : LaserPose or array_like, shape (..., 4), optional
+        Tilt (rad) and offset (mm) of the cone; None or zero: the aligned cone.
 
     Returns
     -------
     ndarray, shape (..., 3)
-        ``(x, y, rho / tan(beta) - h)`` in mm.
+        ``(x, y, rho / tan(beta) - h)`` in mm for the aligned cone; with a pose,
+        z on the tilted cone's lit nappe (NaN where the vertical line misses it).
 
     Examples
     --------
@@ -97,7 +101,10 @@ def cone_point(params, xy):
     """
     theta = to_identifiable(as_param_array(params))
     xy = as_finite_array(xy, "xy", last_dim=2)
-    return cone_point_theta(theta, xy)
+    pose = None if laser is None else as_pose_array(laser)
+    if pose is None or not np.any(pose):
+        return cone_point_theta(theta, xy)
+    return cone_point_pose_theta(theta, pose, xy)
 
 
 def triangulate_theta(theta, pixels, *, jacobian=False):
@@ -147,7 +154,7 @@ def triangulate_theta(theta, pixels, *, jacobian=False):
     return pts, valid, dpix, dth
 
 
-def triangulate(params, pixels, *, return_valid=False):
+def triangulate(params, pixels, *, laser=None, return_valid=False):
     """Reconstruct laser pixels as 3D points on the laser cone.
 
     Each pixel is back-projected to a ray from the mirror focus and
@@ -158,6 +165,10 @@ def triangulate(params, pixels, *, return_valid=False):
     params : SensorParams or ndarray, shape (..., 8)
     pixels : array_like, shape (..., 2)
         ``(u, v)`` in px.
+    laser : LaserPose or array_like, shape (..., 4), optional
+        Tilt (rad) and offset (mm) of the cone, ``(tilt_x, tilt_y, offset_x,
+        offset_y)`` (:mod:`bayescal.sensor.pose`). None or all zero: the
+        paper's aligned cone, computed by its own closed form.
     return_valid : bool, optional
         Also return the mask of pixels whose ray meets the lit nappe of the cone.
 
@@ -180,7 +191,11 @@ def triangulate(params, pixels, *, return_valid=False):
     """
     theta = to_identifiable(as_param_array(params))
     pixels = as_pixels(pixels)
-    pts, valid = triangulate_theta(theta, pixels)
+    pose = None if laser is None else as_pose_array(laser)
+    if pose is None or not np.any(pose):
+        pts, valid = triangulate_theta(theta, pixels)
+    else:
+        pts, valid = triangulate_pose_theta(theta, pose, pixels)
     return (pts, valid) if return_valid else pts
 
 
