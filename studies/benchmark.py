@@ -222,6 +222,19 @@ def bench_reconstruction(timer):
                           f"one-time preparation {prep * 1e3:.0f} ms (check against 2000 "
                           f"draws: sd ratio median {rc.agreement['sd_ratio_median']:.3f}, "
                           f"90 % within {rc.agreement['sd_deviation_p90']:.1%})"})
+    # a frame end to end: a rendered 800x600 image of the same room -> extractor -> points
+    image, _ = bc.render_image(ds.params, ds.walls, rng=2)
+    u0v0 = (post.params.u0, post.params.v0)
+
+    def frame(method):
+        lp = bc.extract_laser(image, center=u0v0)
+        keep = ~lp.flagged
+        return post.reconstruct(lp.pixels[keep], pixel_cov=lp.covariance[keep], method=method,
+                                rng=0)
+
+    rows += compare(timer, "frame", "800x600 image -> extract_laser -> points with covariances",
+                    lambda: frame("sampled"), {"fast path": lambda: frame("auto")},
+                    baseline_note="sampled path (1000 draws)")
     return rows
 
 
