@@ -197,6 +197,15 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     Returns
     -------
     LaserPixels
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> img, truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), rng=0)
+    >>> lp = bc.extract_laser(img)
+    >>> lp.pixels.shape[1], lp.covariance.shape[1:]
+    (2, (2, 2))
     """
     img = as_gray(image, channel=channel, name="image")
     if background is not None:

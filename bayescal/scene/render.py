@@ -189,6 +189,13 @@ def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=N
     image : ndarray of uint8 or uint16, shape (H, W)
     truth : RenderTruth
         The true centre line (pixels, 3D points, azimuths) and the laser-off image.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> img, truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), rng=0)
+    >>> img.shape, truth.pixels.shape[1]
+    ((600, 800), 2)
     """
     params, walls = _check_render_args(params, room, tuple(shape), bits)
     for name, val in (("beam_deg", beam_deg), ("full_well", full_well)):

@@ -73,6 +73,13 @@ class CalibrationData:
         True 3D laser points on the calibration planes, in C, mm.
     laser_plane : ndarray of int, shape (K,)
         Index of the plane each laser pixel falls on.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> cal = bc.simulate_room(range_mm=1000, n_points=50, sigma_px=0.2, rng=0).calibration
+    >>> cal.grid_pixels.shape[-1], cal.laser_pixels.shape[-1]
+    (2, 2)
     """
 
     angles: np.ndarray
@@ -121,6 +128,13 @@ class Dataset:
         ``plan_angle_sd``; those sds are the plan's.
     laser : LaserPose
         The true pose of the laser cone (zero: the paper's aligned cone).
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> ds = bc.simulate_room(range_mm=1000, n_points=50, sigma_px=0.2, rng=0)
+    >>> ds.pixels.shape, ds.points.shape, ds.n_points
+    ((50, 2), (50, 3), 50)
     """
 
     params: SensorParams
@@ -156,6 +170,12 @@ def room_walls(range_mm, n_walls=7):
     Returns
     -------
     ndarray, shape (n_walls, 2, 2)
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> bc.room_walls(1000).shape                # 7 walls, each two (x, y) end points
+    (7, 2, 2)
     """
     range_mm = check_positive(range_mm, "range_mm")
     if int(n_walls) != n_walls or n_walls < 3:

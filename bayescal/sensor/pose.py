@@ -49,6 +49,14 @@ class LaserPose:
         Lateral position of the apex in frame C, mm.
     h : float or None, optional
         Depth of the apex below the mirror focus, mm; needed only by :attr:`apex`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import bayescal as bc
+    >>> pose = bc.LaserPose(tilt_y=np.radians(1.0), offset_x=5.0, h=200.0)
+    >>> (np.round(pose.axis, 4) + 0.0).tolist(), pose.apex.tolist()
+    ([0.0175, 0.0, 0.9998], [5.0, 0.0, -200.0])
     """
 
     tilt_x: float = 0.0
