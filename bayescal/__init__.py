@@ -15,7 +15,7 @@ from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
-from .likelihood.priors import Prior, default_prior
+from .likelihood.priors import Prior, default_pose_prior, default_prior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.calibration import (
     CalibrationResult,
@@ -77,6 +77,7 @@ __all__ = [
     "load_result",
     "Prior",
     "default_prior",
+    "default_pose_prior",
     "NotConvergedWarning",
     "NotConvergedError",
     "DuplicateRowsWarning",

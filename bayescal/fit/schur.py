@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sensor.laser import cone_points_geo
 from ..sensor.parameters import from_identifiable, identifiable_jacobian
 
 __all__ = ["solve_map", "MapSolution", "damped_step"]
@@ -21,16 +22,17 @@ class MapSolution:
 
     Attributes
     ----------
-    theta : ndarray, shape (7,)
+    theta : ndarray, shape (n_geo,)
+        theta (7), or theta and the laser pose (11) for the misaligned model.
     q : ndarray, shape (N, 2)
     cost : float
         Half the sum of squared whitened residuals (prior rows included).
     phi : float
         phi at the MAP (set by the priors alone).
-    cov_theta : ndarray, shape (7, 7)
+    cov_theta : ndarray, shape (n_geo, n_geo)
         Laplace covariance of theta (inverse Schur complement), unscaled.
-    cov_theta_phi : ndarray, shape (8, 8)
-        Laplace covariance of (theta, phi).
+    cov_theta_phi : ndarray, shape (n_geo + 1, n_geo + 1)
+        Laplace covariance of (theta, phi) (phi last).
     cov_points : ndarray, shape (N, 3, 3)
         Laplace covariance of each 3D point (parameters' uncertainty included).
     """
@@ -39,11 +41,25 @@ class MapSolution:
         self.__dict__.update(kw)
 
 
-def _prior_rows(prior, psi):
-    """Prior rows on the 8 paper parameters at ``psi = (theta, phi)`` and their Jacobian."""
-    a = from_identifiable(psi[:7], psi[7])
+def _prior_rows(prior, psi, *, jacobian=True):
+    """Prior rows at ``psi = (geometry, phi)`` and their Jacobian in psi.
+
+    The geometry is theta (7) or, for the misaligned model, theta and the laser pose
+    (11): eight rows on the paper parameters, then four on the pose.
+    """
+    nt = len(psi) - 1
+    a = from_identifiable(psi[:7], psi[nt])
+    if not jacobian:
+        r = prior.residuals(a)
+        return r if nt == 7 else np.concatenate([r, prior.pose_residuals(psi[7:nt])])
     r, D = prior.residuals(a, jacobian=True)
-    return r, D @ identifiable_jacobian(psi[:7], psi[7])
+    J8 = D @ identifiable_jacobian(psi[:7], psi[nt])           # (8, 8) in (theta, phi)
+    if nt == 7:
+        return r, J8
+    rp, Dp = prior.pose_residuals(psi[7:nt], jacobian=True)
+    J = np.zeros((12, nt + 1))
+    J[:8, :7], J[:8, nt], J[8:, 7:nt] = J8[:, :7], J8[:, 7], Dp
+    return np.concatenate([r, rp]), J
 
 
 def _normal_equations(lik, prior, psi, q, sig, w, u):
@@ -53,23 +69,24 @@ def _normal_equations(lik, prior, psi, q, sig, w, u):
     whole block, which leaves its own q-step unchanged and scales its Schur
     contribution to theta by ``u_i`` (see :func:`_schur_step`).
     """
-    R, Jt, Jq = lik.residuals(psi[:7], q, sig, w, jacobian=True)
+    nt = lik.n_geo
+    R, Jt, Jq = lik.residuals(psi[:nt], q, sig, w, jacobian=True)
     rp, Jp = _prior_rows(prior, psi)
     A = Jp.T @ Jp
-    A[:7, :7] += np.einsum("n,nki,nkj->ij", u, Jt, Jt)
-    B = np.zeros((lik.n, 8, 2))
-    B[:, :7] = np.einsum("nki,nkj->nij", Jt, Jq)
+    A[:nt, :nt] += np.einsum("n,nki,nkj->ij", u, Jt, Jt)
+    B = np.zeros((lik.n, nt + 1, 2))
+    B[:, :nt] = np.einsum("nki,nkj->nij", Jt, Jq)
     C = np.einsum("nki,nkj->nij", Jq, Jq)
     gt = Jp.T @ rp
-    gt[:7] += np.einsum("n,nki,nk->i", u, Jt, R)
+    gt[:nt] += np.einsum("n,nki,nk->i", u, Jt, R)
     gq = np.einsum("nki,nk->ni", Jq, R)
     cost = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)
     return cost, A, B, C, gt, gq, R
 
 
 def _cost(lik, prior, psi, q, sig, w, u):
-    R = lik.residuals(psi[:7], q, sig, w)
-    rp = prior.residuals(from_identifiable(psi[:7], psi[7]))
+    R = lik.residuals(psi[:lik.n_geo], q, sig, w)
+    rp = _prior_rows(prior, psi, jacobian=False)
     c = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)
     return c if np.isfinite(c) else np.inf
 
@@ -79,7 +96,7 @@ def _schur_step(A, B, C, gt, gq, lam, u):
     Cd = C.copy()
     Cd[:, [0, 1], [0, 1]] *= 1.0 + lam
     Cinv = np.linalg.inv(Cd)
-    BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]          # (N, 8, 2)
+    BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]          # (N, nt + 1, 2)
     S = Ad - np.einsum("nik,njk->ij", BC, B)
     rhs = -(gt - np.einsum("nik,nk->i", BC, gq))
     dt = np.linalg.solve(S, rhs)
@@ -98,8 +115,10 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     Parameters
     ----------
     lik : LaserLikelihood
+        Or a :class:`~bayescal.likelihood.misaligned.MisalignedLikelihood`: the
+        geometry is then theta and the laser pose (``lik.n_geo`` = 11 numbers).
     prior : Prior
-    theta0 : ndarray, shape (7,)
+    theta0 : ndarray, shape (lik.n_geo,)
     q0 : ndarray, shape (N, 2)
     phi : float, optional
         Starting phi (default: the prior mean).
@@ -152,13 +171,14 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     S = A - np.einsum("nik,njk->ij", BC, B)
     cov_full = np.linalg.inv(S)                      # (theta, phi)
     _, Jp = _prior_rows(prior, theta)
-    info_data = (S - Jp.T @ Jp)[:7, :7]              # what the data alone say about theta
-    cov_t = cov_full[:7, :7]
-    return MapSolution(theta=theta[:7], q=q, cost=float(cost), cov_theta=cov_t,
-                       cov_theta_phi=cov_full, Cinv=Cinv, B=B[:, :7], R=R, A=A, nfev=nfev,
-                       n_iter=n_done, converged=converged, message=message, phi=float(theta[7]),
+    nt = lik.n_geo
+    info_data = (S - Jp.T @ Jp)[:nt, :nt]            # what the data alone say about theta
+    cov_t = cov_full[:nt, :nt]
+    return MapSolution(theta=theta[:nt], q=q, cost=float(cost), cov_theta=cov_t,
+                       cov_theta_phi=cov_full, Cinv=Cinv, B=B[:, :nt], R=R, A=A, nfev=nfev,
+                       n_iter=n_done, converged=converged, message=message, phi=float(theta[nt]),
                        info_data=info_data, weights=u,
-                       cov_points=_point_covariances(theta[:7], q, Cinv, B[:, :7], cov_t, u))
+                       cov_points=_point_covariances(theta[:nt], q, Cinv, B[:, :nt], cov_t, u))
 
 
 def damped_step(propose, cost_of, cost, lam, *, max_tries=30):
@@ -204,10 +224,8 @@ def _point_covariances(theta, q, Cinv, B, cov_t, u):
     A point of weight ``u_i`` has its own block ``u_i C_i``: its conditional
     covariance is ``C_i^-1 / u_i`` (an outlier's point is barely determined).
     """
-    from ..sensor.laser import cone_point_theta
-
-    _, Gq, Gt = cone_point_theta(theta, q, jacobian=True)       # (N,3,2), (N,3,7)
-    K = -np.einsum("nij,nkj,kl->nil", Cinv, B, cov_t)            # cov(q_i, theta): (N,2,7)
+    _, Gq, Gt = cone_points_geo(theta, q, jacobian=True)        # (N,3,2), (N,3,nt)
+    K = -np.einsum("nij,nkj,kl->nil", Cinv, B, cov_t)            # cov(q_i, theta): (N,2,nt)
     cov_q = Cinv / u[:, None, None] + np.einsum("nij,nkj,kl,nlm,nmp->nip", Cinv, B, cov_t, B, Cinv)
     out = (np.einsum("nia,nab,njb->nij", Gq, cov_q, Gq)
            + np.einsum("nia,nab,njb->nij", Gq, K, Gt)

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..checks.fit import check_noise_levels, flag_untrusted
 from ..checks.inputs import check_calibration_input
+from ..likelihood.misaligned import MisalignedLikelihood
 from ..likelihood.outliers import (
     NOISE_TRIM,
     OUTLIER_PRIOR,
@@ -47,10 +48,21 @@ from ..sensor.parameters import (
     identifiable_jacobian,
     to_identifiable,
 )
+from ..sensor.pose import POSE_NAMES, LaserPose
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
 
-__all__ = ["calibrate_simultaneous", "solve_map", "MapSolution"]
+__all__ = ["calibrate_simultaneous", "solve_map", "MapSolution", "MODELS", "check_model"]
+
+#: the laser models: the paper's aligned cone, or a cone tilted and offset (4 more unknowns)
+MODELS = ("aligned", "misaligned")
+
+
+def check_model(model):
+    """``model`` as one of :data:`MODELS`, else a ValueError naming it."""
+    if not isinstance(model, str) or model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    return model
 
 
 def _resolve_init(init, prior):
@@ -68,7 +80,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
                            outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
-                           pixel_cov=None):
+                           pixel_cov=None, model="aligned"):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
 
     Parameters
@@ -125,6 +137,13 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         Noise inflation of the outlier component (default 100).
     outlier_prior : tuple of float, optional
         Beta(a, b) prior of the outlier fraction ``w`` (default (1, 19)).
+    model : {"aligned", "misaligned"}, optional
+        The laser cone: the paper's, coaxial with the camera (default), or tilted
+        by ``(tilt_x, tilt_y)`` and offset by ``(offset_x, offset_y)``, four more
+        unknowns with priors by name in ``prior`` (default zero +- 2 degrees and
+        5 mm, :func:`~bayescal.likelihood.priors.default_pose_prior`;
+        ``docs/model.md``, "A misaligned laser cone"). With approximate points
+        and ``estimate_points=True``.
 
     Returns
     -------
@@ -132,6 +151,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         ``params``; ``points`` (N, 3) the jointly estimated laser points
         (``estimate_points=True``) or the triangulated pixels; ``covariance``
         (8, 8) with ``phi``'s prior variance on the phi/alpha ridge;
+        ``covariance(identifiable=True)`` (7, 7), or (11, 11) with the misaligned
+        model (the pose after the seven); ``laser`` (:class:`~bayescal.LaserPose`);
         ``extras["point_covariance"]`` (N, 3, 3); ``extras["map"]``.
 
     Examples
@@ -144,6 +165,10 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     >>> res.converged
     True
     """
+    model = check_model(model)
+    if model == "misaligned" and (isinstance(approx_points, FloorPlan) or not estimate_points):
+        raise NotImplementedError("model='misaligned' is supported with approximate points and "
+                                  "estimate_points=True (not yet with a FloorPlan)")
     if pixel_cov is not None and (isinstance(approx_points, FloorPlan) or not estimate_points):
         raise TypeError("pixel_cov is supported with approximate points and "
                         "estimate_points=True only (not yet with a FloorPlan)")
@@ -168,10 +193,14 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     pixels, approx_points = check_calibration_input(pixels, approx_points,
                                                     sigma_scene=sigma_scene,
                                                     center=(init.u0, init.v0))
-    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                          outliers=outliers and estimate_points, outlier_scale=outlier_scale,
-                          outlier_prior=outlier_prior, pixel_cov=pixel_cov)
+    lik = _likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
+                      sigma_scene=sigma_scene, outliers=outliers and estimate_points,
+                      outlier_scale=outlier_scale, outlier_prior=outlier_prior,
+                      pixel_cov=pixel_cov)
     theta0 = to_identifiable(init.to_array())
+    if lik.n_geo > 7:                                   # the pose starts at its prior mean
+        theta0 = np.concatenate([theta0, [float(prior.pose_dists[n].mean())
+                                          for n in POSE_NAMES]])
     q0 = lik.initial_q(theta0)
     if not estimate_points:
         return _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
@@ -180,6 +209,13 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     if lik.n_noise:
         check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
     return _make_result(lik, prior, fit, absolute_sigma, raise_on_failure)
+
+
+def _likelihood(model, pixels, approx_points, prior, **kw):
+    """The per-point likelihood of ``model`` (the misaligned one reads the pose prior)."""
+    if model == "misaligned":
+        return MisalignedLikelihood(pixels, approx_points, prior=prior, **kw)
+    return LaserLikelihood(pixels, approx_points, **kw)
 
 
 class _MapFit:
@@ -309,9 +345,7 @@ def _fit_noise(lik, fit, trim=0.0):
 
 
 def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
-    from ..sensor.laser import cone_point_theta
-
-    n = lik.n
+    n, nt = lik.n, lik.n_geo
     sol, sig, w = fit.sol, fit.sig, np.broadcast_to(fit.w_scene(lik), (n, 3))
     noise = {"sigma_px": sig, "kappa": fit.kappa if lik.infer_scene else None}
     if lik.outliers:
@@ -320,36 +354,31 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
     # degrees of freedom of the data rows only: the 8 prior rows carry no noise and
     # phi is fixed by them alone, so neither enters the noise estimate
     n_res = 2 * n + int(np.count_nonzero(w))
-    n_unk = 7 + 2 * n
+    n_unk = nt + 2 * n
     # outliers (probability r) leave the noise statistics: each point counts 1 - r
     keep = 1.0 - fit.r
     n_res_in = float(np.sum(keep * (2 + np.count_nonzero(w, axis=1))))
     chi2 = float(np.sum(keep * np.sum(R * R, axis=1)))
-    red = chi2 / max(n_res_in - 7 - 2 * np.sum(keep), 1)
+    red = chi2 / max(n_res_in - nt - 2 * np.sum(keep), 1)
     scale = 1.0 if absolute_sigma else red
-    cov7 = sol.cov_theta * scale
-    J = identifiable_jacobian(sol.theta, sol.phi)
-    cov8 = J @ (sol.cov_theta_phi * scale) @ J.T
+    theta7 = sol.theta[:7]
+    J = identifiable_jacobian(theta7, sol.phi)
+    sub = np.r_[0:7, nt]                                # (theta, phi) without the pose
+    cov8 = J @ (sol.cov_theta_phi[np.ix_(sub, sub)] * scale) @ J.T
     cov8 = 0.5 * (cov8 + cov8.T)
-    params = SensorParams.from_array(from_identifiable(sol.theta, sol.phi))
-    points = cone_point_theta(sol.theta, sol.q)
+    params = SensorParams.from_array(from_identifiable(theta7, sol.phi))
     pix_rms, scene_rms = _residual_rms(lik, R, keep, w, sig)
-    sigma_hat = float(sig * np.sqrt(red))
-    # identifiability of the 8 paper parameters from the data alone (points reduced out
-    # by the Schur complement, priors left out): square-root rows of that information
-    e, V = np.linalg.eigh(0.5 * (sol.info_data + sol.info_data.T))
-    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
-    dtheta_da = np.linalg.inv(identifiable_jacobian(sol.theta, sol.phi))[:7]   # (7, 8)
-    report = identifiability_report(root @ dtheta_da, PARAM_NAMES)
     result = CalibrationResult(
-        method="simultaneous", params=params, points=points, covariance=cov8,
-        covariance_identifiable=cov7,
+        method="simultaneous", params=params, points=lik.points_3d(sol.theta, sol.q),
+        covariance=cov8, covariance_identifiable=sol.cov_theta * scale,
+        laser=LaserPose.from_array(sol.theta[7:], h=params.h) if nt > 7 else None,
         residual_rms={"pixel_px": pix_rms, "scene_mm": scene_rms},
-        sigma_px_estimated=sigma_hat, n_residuals=n_res, n_unknowns=n_unk,
+        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
         converged=bool(sol.converged and np.all(np.isfinite(sol.theta))), message=sol.message,
-        nfev=sol.nfev, identifiability=report,
+        nfev=sol.nfev, identifiability=_identifiability(sol),
         extras={"point_covariance": sol.cov_points * scale, "map": sol, "noise": noise,
-                "theta": sol.theta, "identifiable_names": IDENTIFIABLE_NAMES,
+                "theta": sol.theta,
+                "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
                 "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
     if result.converged:
@@ -360,6 +389,19 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _identifiability(sol):
+    """What the data alone (points reduced out by the Schur complement, priors left out)
+    determine of the 8 paper parameters (and the pose): square-root rows of that
+    information, in the paper's coordinates."""
+    nt = len(sol.theta)
+    e, V = np.linalg.eigh(0.5 * (sol.info_data + sol.info_data.T))
+    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
+    T = np.zeros((nt, nt + 1))                        # d geometry / d (paper, pose)
+    T[:7, :8] = np.linalg.inv(identifiable_jacobian(sol.theta[:7], sol.phi))[:7]
+    T[7:, 8:] = np.eye(nt - 7)
+    return identifiability_report(root @ T, PARAM_NAMES + POSE_NAMES[:nt - 7])
 
 
 def _residual_rms(lik, R, keep, w, sig):

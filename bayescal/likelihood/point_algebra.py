@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grad_terms", "point_terms", "pixel_whitening", "whiten"]
+__all__ = ["grad_terms", "point_terms", "normal_terms", "pixel_whitening", "whiten"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -99,6 +99,15 @@ def point_terms(lik, theta, x, y, sig, w):
         ru, rv = la * ru + lb * rv, lc * rv
         ux, vx = la * ux + lb * vx, lc * vx
         uy, vy = la * uy + lb * vy, lc * vy
+    return normal_terms(lik, x, y, z, (ru, rv), (ux, uy, vx, vy), (gx, gy), w)
+
+
+def normal_terms(lik, x, y, z, r_px, J_px, dz, w):
+    """``(rr, Cp, Cs, g0, g1)`` of :func:`point_terms` from a point's whitened pixel
+    residuals ``r_px = (ru, rv)``, their q-derivatives ``J_px = (ux, uy, vx, vy)``, the
+    cone's slope ``dz = (dz/dx, dz/dy)`` and the scene weights ``w`` (..., N, 3)
+    (shared by the aligned and the misaligned cone)."""
+    (ru, rv), (ux, uy, vx, vy), (gx, gy) = r_px, J_px, dz
     wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
     rx, ry, rz = (x - lik.approx[:, 0]) * wx, (y - lik.approx[:, 1]) * wy, \
         (z - lik.approx[:, 2]) * wz

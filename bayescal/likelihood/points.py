@@ -1,17 +1,16 @@
 """The likelihood of laser pixels and approximate 3D points (one model for all fitters).
 
-Data: laser pixels ``pixels`` (N, 2) and approximate points ``approx_points``
-(N, 3). Unknowns: the identifiable parameters ``theta`` (7,) and, per laser
-point, its scene coordinates ``q_i = (x_i, y_i)`` (the horizontal position
-where the ray meets the wall); the cone gives ``P_i = (x_i, y_i,
-rho_i / tan(beta) - h)``. The model (``docs/bayes.md``)::
+Data: laser pixels ``pixels`` (N, 2) and approximate points ``approx_points`` (N, 3).
+Unknowns: the identifiable parameters ``theta`` (7,) and, per laser point, its scene
+coordinates ``q_i = (x_i, y_i)`` (the horizontal position where the ray meets the
+wall); the cone gives ``P_i = (x_i, y_i, rho_i / tan(beta) - h)``. The model (``docs/bayes.md``)::
 
     pixels_i        ~ N(project(theta, P_i), sigma_px^2 I_2)   (or sigma_px^2 pixel_cov_i)
     approx_points_i ~ N(P_i, diag(sigma_scene_i^2))       (inf = axis not used)
 
-Each point contributes five whitened residuals (two pixel, three scene rows),
-returned with analytic Jacobians, vectorized over leading axes (walkers) and
-the N points; the least squares and both samplers all call it.
+Each point contributes five whitened residuals (two pixel, three scene rows), with
+analytic Jacobians, vectorized over leading axes (walkers) and the N points; the
+least squares and both samplers call it (a misaligned cone: ``misaligned.py``).
 
 Noise levels are given or inferred: ``sigma_px = None`` adds ``log sigma_px``
 to the sampled vector, ``sigma_scene = None`` adds ``log kappa`` with
@@ -24,7 +23,7 @@ import numpy as np
 
 from .._validation import as_pixels, as_points, check_positive
 from ..sensor.camera import project_theta
-from ..sensor.laser import cone_point_theta, triangulate_theta
+from ..sensor.laser import cone_points_geo, triangulate_geo
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
 from .point_algebra import grad_terms, pixel_whitening, point_terms, whiten
 from .point_blocks import clear_blocks, concat_blocks, sum_blocks
@@ -88,7 +87,11 @@ class LaserLikelihood:
     ----------
     n_noise : int
         Number of inferred noise parameters appended to ``theta`` (0, 1 or 2).
+    n_geo : int
+        Geometric unknowns: 7 (theta; the misaligned model's 11 add the pose).
     """
+
+    n_geo = 7
 
     def __init__(self, pixels, approx_points, *, sigma_px, sigma_scene, point_prior="jeffreys",
                  outliers=False, outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
@@ -190,10 +193,8 @@ class LaserLikelihood:
             w = np.broadcast_to(w, lead + (self.n, 3))
         else:
             w = np.broadcast_to(self.w_scene, lead + (self.n, 3))
-        if self.infer_scene:
-            log_w = np.log(w).sum(axis=-1)                      # every axis used
-        else:
-            log_w = self._log_w_given                           # constant: computed once
+        # every axis used when inferred; else a constant computed once
+        log_w = np.log(w).sum(axis=-1) if self.infer_scene else self._log_w_given
         log_norm = (-2.0 * np.log(sig)[..., None] + log_w - 0.5 * self._n_rows * _LOG2PI
                     + self._px_log_det)
         return sig, w, log_norm
@@ -208,6 +209,9 @@ class LaserLikelihood:
         Here the extras are ``log sigma_px`` and ``log kappa`` where inferred,
         then ``logit w`` (``"outlier_frac"``) with ``outliers=True``.
         """
+        return self._noise_names()
+
+    def _noise_names(self):
         return tuple(n for n, on in (("sigma_px", self.infer_px), ("kappa", self.infer_scene),
                                      ("outlier_frac", self.outliers)) if on)
 
@@ -221,7 +225,7 @@ class LaserLikelihood:
         """
         extra = np.asarray(extra, dtype=float)
         lp = np.zeros(extra.shape[:-1])
-        for k, name in enumerate(self.extra_names):
+        for k, name in enumerate(self._noise_names()):
             x = extra[..., k]
             if name == "outlier_frac":
                 lp = lp + log_prior_logit_frac(x, self.outlier_prior)
@@ -232,13 +236,12 @@ class LaserLikelihood:
 
     def points_3d(self, psi, q):
         """3D points (..., N, 3), mm, of the scene coordinates ``q`` (..., N, 2) under ``psi``."""
-        theta = np.asarray(psi, dtype=float)[..., :7]
-        return cone_point_theta(theta[..., None, :], q)
+        return cone_points_geo(np.asarray(psi, dtype=float)[..., None, :self.n_geo], q)
 
     def split(self, psi):
-        """Split a sampled vector ``(..., 7 + n_noise)`` into theta and noise entries."""
+        """Split a sampled vector ``(..., n_geo + n_extra)`` into the geometry and the rest."""
         psi = np.asarray(psi, dtype=float)
-        return psi[..., :7], psi[..., 7:]
+        return psi[..., :self.n_geo], psi[..., self.n_geo:]
 
     # -- residuals -----------------------------------------------------------
     def residuals(self, theta, q, sigma_px, w_scene, *, jacobian=False):
@@ -246,7 +249,8 @@ class LaserLikelihood:
 
         Parameters
         ----------
-        theta : ndarray, shape (..., 7)
+        theta : ndarray, shape (..., n_geo)
+            The geometry: theta (7), then the laser pose with the misaligned model.
         q : ndarray, shape (..., N, 2)
             Scene coordinates (x, y) of the points, mm.
         sigma_px : ndarray, shape (...)
@@ -256,20 +260,17 @@ class LaserLikelihood:
         Returns
         -------
         R : ndarray, shape (..., N, 5)
-            Two pixel rows then three scene rows (zero where unused); NaN
-            where a point leaves the projection's domain.
-        J_theta : ndarray, shape (..., N, 5, 7)
-            Only with ``jacobian=True``.
-        J_q : ndarray, shape (..., N, 5, 2)
+            Two pixel rows, three scene rows (0 where unused); NaN outside the domain.
+        J_theta, J_q : ndarray, shapes (..., N, 5, n_geo) and (..., N, 5, 2)
             Only with ``jacobian=True``.
         """
-        th = np.asarray(theta)[..., None, :]
+        g = np.asarray(theta, dtype=float)[..., None, :]
         if not jacobian:
-            P = cone_point_theta(th, q)
-            uv, _ = project_theta(th, P)
+            P = cone_points_geo(g, q)
+            uv, _ = project_theta(g[..., :7], P)
         else:
-            P, dxy, dthc = cone_point_theta(th, q, jacobian=True)
-            uv, _, dPp, dthp = project_theta(th, P, jacobian=True)
+            P, dxy, dgc = cone_points_geo(g, q, jacobian=True)
+            uv, _, dPp, dthp = project_theta(g[..., :7], P, jacobian=True)
         inv_s = 1.0 / np.asarray(sigma_px)[..., None, None]
         shape = uv.shape[:-1]
         R = np.empty(shape + (5,))
@@ -278,13 +279,13 @@ class LaserLikelihood:
         if not jacobian:
             return R
         Jq = np.empty(shape + (5, 2))
-        Jq[..., :2, :] = whiten(self.px_white, (dPp[..., :, :2] + dPp[..., :, 2:3]
-                                                * dxy[..., 2:3, :]) * inv_s[..., None], axis=-2)
+        Jq[..., :2, :] = whiten(self.px_white, (dPp @ dxy) * inv_s[..., None], axis=-2)
         Jq[..., 2:, :] = dxy * w_scene[..., :, None]
-        Jt = np.empty(shape + (5, 7))
-        Jt[..., :2, :] = whiten(self.px_white, (dthp + dPp[..., :, 2:3] * dthc[..., 2:3, :])
-                                * inv_s[..., None], axis=-2)
-        Jt[..., 2:, :] = dthc * w_scene[..., :, None]
+        dpix = dPp @ dgc                                    # through the cone point
+        dpix[..., :7] += dthp                               # and the camera directly
+        Jt = np.empty(shape + (5, self.n_geo))
+        Jt[..., :2, :] = whiten(self.px_white, dpix * inv_s[..., None], axis=-2)
+        Jt[..., 2:, :] = dgc * w_scene[..., :, None]
         return R, Jt, Jq
 
     # -- per-point Laplace step ----------------------------------------------
@@ -295,7 +296,7 @@ class LaserLikelihood:
         if not self.infer_scene:
             blind = ~self._scene_mask[:, :2].all(axis=1)
             if np.any(blind):
-                P, ok = triangulate_theta(np.asarray(theta, float), self.pixels[blind])
+                P, ok = triangulate_geo(np.asarray(theta, float), self.pixels[blind])
                 q[blind] = np.where(ok[:, None], P[:, :2], q[blind])
         return q
 

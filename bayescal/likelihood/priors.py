@@ -26,8 +26,9 @@ from scipy.special import logsumexp
 
 from .._validation import resolve_rng
 from ..sensor.parameters import PARAM_NAMES, SensorParams
+from ..sensor.pose import POSE_NAMES
 
-__all__ = ["default_prior", "Prior"]
+__all__ = ["default_prior", "default_pose_prior", "Prior", "POSE_TOLERANCES"]
 
 #: default tolerances (one standard deviation) around the design values
 DEFAULT_TOLERANCES = {
@@ -41,6 +42,42 @@ DEFAULT_TOLERANCES = {
     "beta": 0.05,        # rad (about 3 degrees)
 }
 _RELATIVE = ("alpha_u", "alpha_v", "h")
+
+#: default tolerances (one standard deviation, around zero) of the laser cone's pose,
+#: used by the misaligned model: a hand-assembled prototype's tilt (rad) and offset (mm)
+POSE_TOLERANCES = {
+    "tilt_x": float(np.radians(2.0)),
+    "tilt_y": float(np.radians(2.0)),
+    "offset_x": 5.0,
+    "offset_y": 5.0,
+}
+
+
+def default_pose_prior():
+    """Default priors of the laser cone's pose (misaligned model): zero +- tolerance.
+
+    ============  ==========  ============================
+    parameter     default     standard deviation
+    ============  ==========  ============================
+    tilt_x        0 rad       2 degrees (0.0349 rad)
+    tilt_y        0 rad       2 degrees
+    offset_x      0 mm        5 mm
+    offset_y      0 mm        5 mm
+    ============  ==========  ============================
+
+    Returns
+    -------
+    dict
+        ``{name: scipy.stats frozen distribution}`` for the four names of
+        :data:`~bayescal.sensor.pose.POSE_NAMES`.
+
+    Examples
+    --------
+    >>> import bayescal as bc
+    >>> round(float(bc.default_pose_prior()["offset_x"].std()), 3)
+    5.0
+    """
+    return {name: stats.norm(loc=0.0, scale=sd) for name, sd in POSE_TOLERANCES.items()}
 
 
 def default_prior(nominal=None):
@@ -101,7 +138,9 @@ class Prior:
     Parameters
     ----------
     prior : dict, optional
-        ``{name: frozen distribution}`` overriding any of the defaults.
+        ``{name: frozen distribution}`` overriding any of the defaults: the eight
+        parameters' names, or the laser pose's (``tilt_x, tilt_y, offset_x,
+        offset_y``; used only by the misaligned model, :func:`default_pose_prior`).
     nominal : SensorParams, optional
         Design values for the defaults.
     n_phi : int, optional
@@ -111,6 +150,8 @@ class Prior:
     ----------
     dists : dict
         The eight frozen distributions, keyed by :data:`~bayescal.PARAM_NAMES`.
+    pose_dists : dict
+        The four of the laser pose, keyed by ``POSE_NAMES`` (misaligned model).
 
     Examples
     --------
@@ -123,22 +164,25 @@ class Prior:
 
     def __init__(self, prior=None, *, nominal=None, n_phi=64):
         dists = default_prior(nominal)
+        pose = default_pose_prior()
         if prior is not None:
             if isinstance(prior, Prior):
-                prior = prior.dists
+                prior = {**prior.dists, **prior.pose_dists}
             if not isinstance(prior, dict):
                 raise TypeError(f"prior must be a dict {{name: scipy.stats frozen distribution}}, "
                                 f"got {type(prior).__name__}")
-            unknown = set(prior) - set(PARAM_NAMES)
+            unknown = set(prior) - set(PARAM_NAMES) - set(POSE_NAMES)
             if unknown:
                 raise ValueError(f"prior has unknown parameter name(s) {sorted(unknown)}; "
-                                 f"expected any of {PARAM_NAMES}")
+                                 f"expected any of {PARAM_NAMES + POSE_NAMES}")
             for k, v in prior.items():
-                dists[k] = _check_dist(k, v)
+                (pose if k in POSE_NAMES else dists)[k] = _check_dist(k, v)
         self.dists = dists
+        self.pose_dists = pose
         # normal priors are evaluated in closed form (scipy's per-call overhead dominated
         # the sampler's prior cost)
-        self._normal = {n: (float(d.mean()), float(d.std())) for n, d in dists.items()
+        self._normal = {n: (float(d.mean()), float(d.std()))
+                        for n, d in {**dists, **pose}.items()
                         if getattr(getattr(d, "dist", None), "name", "") == "norm"}
         # quadrature over phi: equal-probability nodes (midpoint rule in quantile space)
         u = (np.arange(n_phi) + 0.5) / n_phi
@@ -151,7 +195,18 @@ class Prior:
             mu, sd = self._normal[name]
             z = (x - mu) / sd
             return -0.5 * z * z - np.log(sd) - 0.5 * np.log(2 * np.pi)
-        return self.dists[name].logpdf(x)
+        return (self.pose_dists if name in POSE_NAMES else self.dists)[name].logpdf(x)
+
+    # -- laser pose (misaligned model) -------------------------------------
+    def logpdf_pose(self, pose):
+        """Log prior density of the laser pose, shape (..., 4) -> (...)."""
+        pose = np.asarray(pose, dtype=float)
+        return sum(self._logpdf(name, pose[..., k]) for k, name in enumerate(POSE_NAMES))
+
+    def pose_residuals(self, pose, *, jacobian=False):
+        """The pose prior as whitened residuals (4,) (and their diagonal Jacobian (4, 4)),
+        as :meth:`residuals` does for the eight parameters."""
+        return _whitened(self.pose_dists, POSE_NAMES, pose, jacobian)
 
     # -- paper parameters -------------------------------------------------
     def logpdf(self, a):
@@ -260,25 +315,30 @@ class Prior:
         r : ndarray, shape (8,)
         J : ndarray, shape (8, 8), diagonal (only with ``jacobian=True``)
         """
-        a = np.asarray(a, dtype=float)
-        r = np.empty(8)
-        d = np.empty(8)
-        for k, name in enumerate(PARAM_NAMES):
-            dist = self.dists[name]
-            if getattr(dist.dist, "name", "") == "norm":
-                mu, sd = dist.mean(), dist.std()
-                r[k] = (a[k] - mu) / sd
-                d[k] = 1.0 / sd
-            else:
-                m = float(dist.median())
-                diff = max(float(dist.logpdf(m) - dist.logpdf(a[k])), 0.0)
-                r[k] = np.sign(a[k] - m) * np.sqrt(2 * diff)
-                eps = 1e-6 * max(abs(a[k]), float(dist.std()), 1e-12)
-                dlp = (dist.logpdf(a[k] + eps) - dist.logpdf(a[k] - eps)) / (2 * eps)
-                d[k] = -dlp / r[k] if abs(r[k]) > 1e-8 else 1.0 / float(dist.std())
-        if not jacobian:
-            return r
-        return r, np.diag(d)
+        return _whitened(self.dists, PARAM_NAMES, a, jacobian)
+
+
+def _whitened(dists, names, a, jacobian):
+    """Whitened prior residuals of independent priors ``dists`` at ``a`` (len(names),)."""
+    a = np.asarray(a, dtype=float)
+    r = np.empty(len(names))
+    d = np.empty(len(names))
+    for k, name in enumerate(names):
+        dist = dists[name]
+        if getattr(dist.dist, "name", "") == "norm":
+            mu, sd = dist.mean(), dist.std()
+            r[k] = (a[k] - mu) / sd
+            d[k] = 1.0 / sd
+        else:
+            m = float(dist.median())
+            diff = max(float(dist.logpdf(m) - dist.logpdf(a[k])), 0.0)
+            r[k] = np.sign(a[k] - m) * np.sqrt(2 * diff)
+            eps = 1e-6 * max(abs(a[k]), float(dist.std()), 1e-12)
+            dlp = (dist.logpdf(a[k] + eps) - dist.logpdf(a[k] - eps)) / (2 * eps)
+            d[k] = -dlp / r[k] if abs(r[k]) > 1e-8 else 1.0 / float(dist.std())
+    if not jacobian:
+        return r
+    return r, np.diag(d)
 
 
 def _physical(a):

@@ -33,6 +33,8 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
+from ..fit.simultaneous import check_model
+from ..likelihood.misaligned import MisalignedLikelihood
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
 from ..likelihood.priors import Prior
 from ..results.posterior import Posterior
@@ -61,7 +63,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
-                     outliers=True):
+                     outliers=True, model="aligned"):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -79,8 +81,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         ``kappa`` in ``sigma_scene_i = kappa * rho_i`` (log-uniform prior on
         ``NOISE_BOUNDS["kappa"]``).
     prior : dict, optional
-        ``{name: scipy.stats frozen distribution}`` for any of the 8 names;
-        the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
+        ``{name: scipy.stats frozen distribution}`` for any of the 8 names (and,
+        with ``model="misaligned"``, the pose's four); the rest keep
+        :func:`~bayescal.likelihood.priors.default_prior`.
     rng : numpy.random.Generator, int or None
         Randomness of walkers, emcee and point draws: same seed, same chains.
     n_walkers : int, optional
@@ -122,6 +125,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         row's posterior probability of being one. On clean data it moves the
         posterior by a few hundredths of a sd (``tests/mcmc/test_sampling.py``).
         ``False``: the pure model. The same with a :class:`~bayescal.FloorPlan`.
+    model : {"aligned", "misaligned"}, optional
+        The laser cone (see :func:`~bayescal.calibrate_simultaneous`): with
+        ``"misaligned"`` its tilt and offset are sampled too (``post.laser_samples``
+        (S, 4)), as four extra globals of the collapsed sampler, without the gradient
+        move (``docs/bayes.md``, "The misaligned model"). Approximate points only.
 
     Returns
     -------
@@ -140,8 +148,13 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
+    model = check_model(model)
     if isinstance(approx_points, FloorPlan):          # walls in place of points
-        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
+        if model != "aligned":
+            raise NotImplementedError("model='misaligned' is supported with approximate "
+                                      "points (not yet with a FloorPlan)")
+        kw = {k: v for k, v in locals().items()
+              if k not in ("pixels", "approx_points", "model")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
@@ -150,13 +163,16 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
-    lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                          outliers=outliers)
+    lik = (MisalignedLikelihood(pixels, approx_points, prior=prior, sigma_px=sigma_px,
+                                sigma_scene=sigma_scene, outliers=outliers)
+           if model == "misaligned" else
+           LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
+                           outliers=outliers))
     ndim = 7 + len(lik.extra_names)
     check_walkers(n_walkers, ndim)
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init,
-                                     outliers=outliers)
+                                     outliers=outliers, model=model)
     psi_map, cov_map, q_map = _map_start(lik, map_res)
     # the sampler's ring radius is taken at the points' median range (docs/bayes.md sec. 3)
     lik.reference_range = float(np.median(np.hypot(map_res.points[:, 0], map_res.points[:, 1])))
@@ -183,10 +199,10 @@ def _map_start(lik, map_res):
     if lik.outliers:
         w = float(np.clip(noise["outlier_frac"], 1e-4, 0.5))
         psi_map.append(np.log(w / (1.0 - w)))
-    ndim = len(psi_map)
+    ndim, nt = len(psi_map), len(sol.theta)          # nt: theta (7) and the pose (misaligned)
     cov = np.zeros((ndim, ndim))
-    cov[:7, :7] = sol.cov_theta
-    for k in range(7, ndim):
+    cov[:nt, :nt] = sol.cov_theta
+    for k in range(nt, ndim):
         cov[k, k] = 1.0 / lik.n                 # ~ squared relative sd of a noise estimate
     if lik.outliers:                            # logit w: ~ Beta(1, 19) prior's spread
         cov[-1, -1] = 1.0

@@ -10,7 +10,10 @@ It answers to the same names as :class:`~bayescal.Posterior`:
     the reconstructed laser points, (N, 3) mm (None without room data);
 ``covariance(identifiable=False)``
     (8, 8) in the order of :data:`~bayescal.PARAM_NAMES`, or (7, 7) in the
-    identifiable coordinates;
+    identifiable coordinates ((11, 11) with the misaligned model: the laser pose
+    ``tilt_x, tilt_y, offset_x, offset_y`` after the seven);
+``laser``
+    the laser cone's pose (:class:`~bayescal.LaserPose`; zero for the aligned model);
 ``point_covariance()``
     (N, 3, 3) mm^2;
 ``reconstruct(pixels)``
@@ -40,6 +43,7 @@ import numpy as np
 
 from ..constants import Z90
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
+from ..sensor.pose import POSE_NAMES, LaserPose, as_pose_array
 from ..stats.identifiability import (
     IdentifiabilityReport,
     covariance_8_from_identifiable,
@@ -87,7 +91,7 @@ class ConvergenceError(RuntimeError):
         self.result = result
 
 
-def linear_reconstruction(params, cov_identifiable, pixels, sigma_px):
+def linear_reconstruction(params, cov_identifiable, pixels, sigma_px, *, laser=None):
     """Triangulate pixels and propagate parameter and pixel uncertainty to first order.
 
     ``cov = J_theta C_theta J_theta^T + sigma_px^2 J_px J_px^T`` with the
@@ -96,21 +100,26 @@ def linear_reconstruction(params, cov_identifiable, pixels, sigma_px):
     Parameters
     ----------
     params : SensorParams
-    cov_identifiable : ndarray, shape (7, 7)
-        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``; NaN entries
-        (not estimated) are treated as 0.
+    cov_identifiable : ndarray, shape (7, 7) or (11, 11)
+        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)`` (then of the
+        laser pose, with ``laser``); NaN entries (not estimated) are treated as 0.
     pixels : ndarray, shape (M, 2)
         px.
     sigma_px : float
         Pixel noise of the new pixels, px (0 for the parameter part only).
+    laser : LaserPose, optional
+        The laser cone's pose (misaligned model); with an (11, 11) covariance.
 
     Returns
     -------
     LinearReconstruction
         Unpacks as ``mean (M, 3)`` mm and ``covariance (M, 3, 3)`` mm^2.
     """
-    pts, cov = propagate(params.to_identifiable(), cov_identifiable,
-                         np.asarray(pixels, float), sigma_px**2 * np.eye(2))
+    geo = params.to_identifiable()
+    if np.shape(cov_identifiable) == (11, 11):
+        geo = np.concatenate([geo, (laser or LaserPose()).to_array()])
+    pts, cov = propagate(geo, cov_identifiable, np.asarray(pixels, float),
+                         sigma_px**2 * np.eye(2))
     return LinearReconstruction(pts, cov)
 
 
@@ -129,8 +138,9 @@ class CalibrationResult:
         Covariance of the paper parameters, order :data:`~bayescal.PARAM_NAMES`;
         NaN rows/columns mark parameters the method did not estimate. Read it
         back with :meth:`covariance`.
-    covariance_identifiable : ndarray, shape (7, 7)
-        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``.
+    covariance_identifiable : ndarray, shape (7, 7) or (11, 11)
+        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``, then of the
+        laser pose with the misaligned model.
     residual_rms : dict
         RMS of each kind of residual, e.g. ``{"pixel_px": ..., "cone_mm": ...}``.
     sigma_px_estimated : float or None
@@ -147,6 +157,9 @@ class CalibrationResult:
         Method-specific outputs (pose, planes, ``point_covariance`` (N, 3, 3)).
     outlier_prob : ndarray, shape (N,), optional
         Per-point probability of being an outlier (None: not modelled).
+    laser : LaserPose, optional
+        The fitted pose of the laser cone (misaligned model); None: the aligned
+        model, whose :attr:`laser` is the zero pose.
 
     Examples
     --------
@@ -164,7 +177,8 @@ class CalibrationResult:
 
     def __init__(self, *, method, params, points, covariance, covariance_identifiable,
                  residual_rms, sigma_px_estimated, n_residuals, n_unknowns, converged,
-                 message, nfev, identifiability, extras=None, outlier_prob=None):
+                 message, nfev, identifiability, extras=None, outlier_prob=None,
+                 laser=None):
         self.method, self.params = str(method), params
         self.points = None if points is None else np.asarray(points, float)
         self._covariance = np.asarray(covariance, float)
@@ -178,6 +192,27 @@ class CalibrationResult:
         if outlier_prob is None:
             outlier_prob = self.extras.get("outlier_prob")
         self.outlier_prob = None if outlier_prob is None else np.asarray(outlier_prob, float)
+        self._laser = None if laser is None else LaserPose.from_array(as_pose_array(laser),
+                                                                      h=self.params.h)
+
+    @property
+    def model(self):
+        """``"misaligned"`` when the laser cone's pose was fitted, else ``"aligned"``."""
+        return "aligned" if self._laser is None else "misaligned"
+
+    @property
+    def laser(self):
+        """The laser cone's pose (:class:`~bayescal.LaserPose`, apex depth ``h`` set): the
+        fitted one with the misaligned model, the zero pose with the aligned one."""
+        return LaserPose(h=self.params.h) if self._laser is None else self._laser
+
+    def geometry(self):
+        """The fitted geometry in identifiable coordinates, shape (7,) or (11,): theta,
+        then the laser pose with the misaligned model (the order of
+        ``covariance(identifiable=True)``)."""
+        theta = self.params.to_identifiable()
+        return theta if self._laser is None else np.concatenate([theta,
+                                                                 self._laser.to_array()])
 
     def __repr__(self):
         n = "no" if self.points is None else len(self.points)
@@ -186,7 +221,8 @@ class CalibrationResult:
 
     # -- the shared vocabulary ------------------------------------------------------
     def covariance(self, identifiable=False):
-        """Parameter covariance: (8, 8) paper parameters, or (7, 7) identifiable ones."""
+        """Parameter covariance: (8, 8) paper parameters, or (7, 7) identifiable ones
+        ((11, 11) with the misaligned model: the laser pose after the seven)."""
         return (self.covariance_identifiable if identifiable else self._covariance).copy()
 
     def point_covariance(self):
@@ -203,7 +239,8 @@ class CalibrationResult:
         from ..sensor.camera import project
 
         return linear_reconstruction(self.params, self.covariance_identifiable,
-                                     project(self.params, self.points), 0.0).covariance
+                                     project(self.params, self.points), 0.0,
+                                     laser=self._laser).covariance
 
     def model_check(self, **kwargs):
         """The predictive check of this fit: does the model fit its data?
@@ -243,7 +280,7 @@ class CalibrationResult:
         if not (np.isfinite(sigma_px) and sigma_px >= 0):
             raise ValueError(f"sigma_px must be a finite number >= 0 px, got {sigma_px!r}")
         rec = linear_reconstruction(self.params, self.covariance_identifiable, pixels,
-                                    float(sigma_px))
+                                    float(sigma_px), laser=self._laser)
         rec.pixels = pixels
         return rec
 
@@ -255,7 +292,7 @@ class CalibrationResult:
 
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
-        return Reconstructor(self.params.to_identifiable(), self.covariance_identifiable,
+        return Reconstructor(self.geometry(), self.covariance_identifiable,
                              float(sigma_px), level=level)
 
     @property
@@ -308,10 +345,12 @@ class CalibrationResult:
             s_txt = "not estimated" if np.isnan(s) else ("fixed" if s == 0 else f"{s:.4g}")
             lines.append(f"{name:<10} {val:>14.6g} {s_txt:>12}")
         sd7 = np.sqrt(np.maximum(np.diag(self.covariance_identifiable), 0))
+        names = IDENTIFIABLE_NAMES + (POSE_NAMES if self._laser is not None else ())
         lines.append("identifiable: " + ", ".join(
             f"{n} = {v:.6g} +- {s:.3g}"
-            for n, v, s in zip(IDENTIFIABLE_NAMES, self.params.to_identifiable(), sd7,
-                               strict=True)))
+            for n, v, s in zip(names, self.geometry(), sd7, strict=True)))
+        lines.append(f"laser model: {self.model}" + ("" if self._laser is None else
+                     " (tilt in rad, offset in mm; docs/conventions.md)"))
         lines.append("residual RMS: " + ", ".join(f"{k} = {v:.4g}"
                                                     for k, v in self.residual_rms.items()))
         if self.sigma_px_estimated is not None:
@@ -337,7 +376,8 @@ class CalibrationResult:
             ``points``, ``covariance`` (8x8), ``covariance_identifiable`` (7x7),
             ``residual_rms``, ``sigma_px_estimated``, ``n_residuals``,
             ``n_unknowns``, ``converged``, ``message``, ``nfev``,
-            ``identifiability``, ``outlier_prob``, ``extras`` (array extras only).
+            ``identifiability``, ``outlier_prob``, ``laser`` (the pose by name, or
+            None for the aligned model), ``extras`` (array extras only).
         """
         from ..io.jsonfile import to_jsonable
 
@@ -354,6 +394,9 @@ class CalibrationResult:
                  "condition_number": ident.condition_number,
                  "null_directions": ident.null_directions, "rtol": ident.rtol},
              "outlier_prob": self.outlier_prob,
+             "laser": None if self._laser is None else dict(zip(POSE_NAMES,
+                                                                self._laser.to_array(),
+                                                                strict=True)),
              "extras": {k: self.extras[k] for k in _SAVED_EXTRAS
                         if self.extras.get(k) is not None}}
         return to_jsonable(d)
@@ -402,7 +445,9 @@ class CalibrationResult:
                    sigma_px_estimated=None if spe is None else float(spe),
                    n_residuals=d["n_residuals"], n_unknowns=d["n_unknowns"],
                    converged=d["converged"], message=d["message"], nfev=d["nfev"],
-                   identifiability=ident, extras=extras, outlier_prob=arr(d.get("outlier_prob")))
+                   identifiability=ident, extras=extras, outlier_prob=arr(d.get("outlier_prob")),
+                   laser=None if d.get("laser") is None else
+                   np.array([float(d["laser"][n]) for n in POSE_NAMES]))
 
 
 def load_result(path):

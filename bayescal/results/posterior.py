@@ -9,23 +9,17 @@ object; arrays round-trip bit for bit.
 
 from __future__ import annotations
 
-import json
-import os
-import pathlib
-
 import numpy as np
-from scipy import stats
 
 from ..likelihood.priors import Prior
-from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import PARAM_NAMES, SensorParams, to_identifiable
-from ..stats.chains import ChainDiagnostics
+from ..sensor.pose import POSE_NAMES, LaserPose
+from .posterior_file import read_posterior, save_posterior
 from .reconstruction import Reconstruction
 
 __all__ = ["Posterior", "Reconstruction", "load_posterior", "PRIOR_DOMINATED_RATIO",
            "LAPLACE_SD_TOLERANCE"]
 
-FORMAT_VERSION = 1
 #: a parameter is flagged prior-dominated when posterior sd / prior sd exceeds this
 PRIOR_DOMINATED_RATIO = 0.5
 #: MCMC and Laplace disagree when their sd differ by more than this fraction, or their
@@ -34,10 +28,6 @@ LAPLACE_SD_TOLERANCE = 0.2
 LAPLACE_MEAN_TOLERANCE = 0.5
 #: parameters the data cannot see one by one (docs/model.md, fact 1)
 NON_IDENTIFIABLE = ("phi", "alpha_u", "alpha_v")
-
-_ARRAYS = ("param_samples", "point_samples", "noise_samples", "pixels", "approx_points",
-           "tau", "ess", "laplace_cov8", "laplace_cov7", "map_params", "map_points",
-           "map_point_covariance")
 
 
 class Posterior:
@@ -52,7 +42,9 @@ class Posterior:
     point_samples : ndarray, shape (S, N, 3)
         Laser points in frame C, mm.
     noise_samples : ndarray, shape (S, K)
-        Inferred ``log sigma_px`` / ``log kappa`` (K = 0 when both were given).
+        The extra globals named by ``noise_names``: the laser pose (misaligned
+        model, see :attr:`laser_samples`), inferred ``log sigma_px`` / ``log kappa``,
+        ``logit`` of the outlier fraction (K = 0 when none).
     tau, ess : ndarray, shape (7 + K,)
         Integrated autocorrelation time (steps) and honest ensemble effective
         sample size of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)``, then of each
@@ -123,6 +115,32 @@ class Posterior:
         return to_identifiable(self.param_samples)
 
     @property
+    def model(self):
+        """``"misaligned"`` when the laser cone's pose was sampled, else ``"aligned"``."""
+        return "misaligned" if POSE_NAMES[0] in self.noise_names else "aligned"
+
+    @property
+    def laser_samples(self):
+        """Draws of the laser pose ``(tilt_x, tilt_y, offset_x, offset_y)``, shape (S, 4),
+        rad and mm (zeros for the aligned model)."""
+        if self.model == "aligned":
+            return np.zeros((self.n_samples, 4))
+        k = self.noise_names.index(POSE_NAMES[0])
+        return self.noise_samples[:, k:k + 4]
+
+    @property
+    def laser(self):
+        """Posterior mean of the laser pose (:class:`~bayescal.LaserPose`, ``h`` set)."""
+        return LaserPose.from_array(self.laser_samples.mean(axis=0), h=self.params_mean.h)
+
+    @property
+    def geometry_samples(self):
+        """The samples in identifiable coordinates, shape (S, 7), then the pose (S, 11)
+        with the misaligned model: the order of ``covariance(identifiable=True)``."""
+        th = self.theta_samples
+        return th if self.model == "aligned" else np.concatenate([th, self.laser_samples], 1)
+
+    @property
     def params_mean(self):
         """Posterior mean of the 8 parameters as a :class:`SensorParams`."""
         return SensorParams.from_array(self.param_samples.mean(axis=0))
@@ -153,8 +171,9 @@ class Posterior:
         return np.moveaxis(np.quantile(self.point_samples, [lo, hi], axis=0), 0, -1)
 
     def covariance(self, identifiable=False):
-        """Posterior covariance: (8, 8) paper parameters, or (7, 7) identifiable ones."""
-        x = self.theta_samples if identifiable else self.param_samples
+        """Posterior covariance: (8, 8) paper parameters, or (7, 7) identifiable ones
+        ((11, 11) with the misaligned model: the laser pose after the seven)."""
+        x = self.geometry_samples if identifiable else self.param_samples
         return np.cov(x, rowvar=False)
 
     def laplace_covariance(self, identifiable=False):
@@ -166,8 +185,8 @@ class Posterior:
         return (self.laplace_cov7 if identifiable else self.laplace_cov8).copy()
 
     def intervals(self, level=0.9, identifiable=False):
-        """Equal-tailed credible intervals, shape (8, 2) (or (7, 2))."""
-        x = self.theta_samples if identifiable else self.param_samples
+        """Equal-tailed credible intervals, shape (8, 2) (or (7, 2), (11, 2) misaligned)."""
+        x = self.geometry_samples if identifiable else self.param_samples
         lo, hi = (1 - level) / 2, (1 + level) / 2
         return np.quantile(x, [lo, hi], axis=0).T
 
@@ -257,6 +276,13 @@ class Posterior:
                          f"{r['sd_ratio']:8.3f}  {', '.join(flags)}")
         for name, v in self.noise_values().items():
             lines.append(f"{name:8s} {v.mean():11.5g} {v.std(ddof=1):10.3g}   (inferred)")
+        if self.model == "misaligned":
+            q = np.quantile(self.laser_samples, [0.05, 0.5, 0.95], axis=0)
+            for k, name in enumerate(POSE_NAMES):
+                v = self.laser_samples[:, k]
+                lines.append(f"{name:8s} {v.mean():11.5g} {v.std(ddof=1):10.3g} {q[0, k]:11.5g} "
+                             f"{q[1, k]:11.5g} {q[2, k]:11.5g}  laser pose "
+                             f"({'rad' if k < 2 else 'mm'})")
         status = "converged" if self.converged else "NOT CONVERGED"
         lines.append(f"chain: {self.n_walkers} walkers x {self.n_steps} steps, burn-in "
                      f"{self.burn}, max tau {np.max(self.tau):.1f}, min ESS {np.min(self.ess):.0f},"
@@ -347,7 +373,7 @@ class Posterior:
 
         key = (level, rng if isinstance(rng, (int, type(None))) else id(rng))
         if getattr(self, "_reconstructor", (None, None))[0] != key:
-            th = self.theta_samples
+            th = self.geometry_samples
             self._reconstructor = (key, Reconstructor(
                 th.mean(axis=0), np.cov(th, rowvar=False),
                 float(np.mean(self._sigma_px_samples())), theta_samples=th,
@@ -363,6 +389,8 @@ class Posterior:
         """
         out = {}
         for k, n in enumerate(self.noise_names):
+            if n in POSE_NAMES:                 # the laser pose: laser_samples
+                continue
             x = self.noise_samples[:, k]
             out[n] = 1.0 / (1.0 + np.exp(-x)) if n == "outlier_frac" else np.exp(x)
         return out
@@ -404,38 +432,7 @@ class Posterior:
         overwrite : bool, optional
             Refuse to replace an existing file unless True.
         """
-        path = pathlib.Path(path)
-        if path.suffix != ".npz":
-            raise ValueError(f"path must end in .npz, got {str(path)!r}")
-        if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        prior = {}
-        for name, d in self.prior.dists.items():
-            prior[name] = [d.dist.name, [float(a) for a in d.args],
-                           {k: float(v) for k, v in d.kwds.items()}]
-        meta = {"format": "bayescal-posterior", "version": FORMAT_VERSION,
-                "noise_names": list(self.noise_names), "sigma_px": self.sigma_px,
-                "prior": prior, "n_steps": self.n_steps, "burn": self.burn,
-                "n_walkers": self.n_walkers, "converged": self.converged,
-                "acceptance": self.acceptance, "imh_acceptance": self.imh_acceptance,
-                "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict()}
-        arrays = {k: getattr(self, k) for k in _ARRAYS}
-        if self.sigma_scene is not None:
-            arrays["sigma_scene"] = np.asarray(self.sigma_scene, float)
-        for name in ("wall_samples", "outlier_prob"):        # optional arrays
-            if getattr(self, name) is not None:
-                arrays[name] = getattr(self, name)
-        if self.plan is not None:
-            arrays.update({"plan_" + k: v for k, v in self.plan.to_arrays().items()})
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")       # atomic: never a half-written file
-        try:
-            with open(tmp, "wb") as f:
-                np.savez_compressed(f, meta_json=np.array(json.dumps(meta)), **arrays)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return path
+        return save_posterior(self, path, overwrite=overwrite)
 
 
 def load_posterior(path):
@@ -460,41 +457,4 @@ def load_posterior(path):
     >>> bc.load_posterior(path).param_samples.shape
     (100, 8)
     """
-    path = pathlib.Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no posterior file at {path}")
-    with np.load(path, allow_pickle=False) as f:
-        if "meta_json" not in f:
-            raise ValueError(f"{path} is not a bayescal posterior file (no meta_json)")
-        meta = json.loads(str(f["meta_json"]))
-        if meta.get("format") != "bayescal-posterior":
-            raise ValueError(f"{path} is not a bayescal posterior file")
-        if meta["version"] > FORMAT_VERSION:
-            raise ValueError(f"{path} has format version {meta['version']}; this bayescal "
-                             f"reads up to {FORMAT_VERSION}")
-        arrays = {k: f[k] for k in _ARRAYS}
-        sigma_scene = f["sigma_scene"] if "sigma_scene" in f else None
-        wall_samples = f["wall_samples"] if "wall_samples" in f else None
-        outlier_prob = f["outlier_prob"] if "outlier_prob" in f else None
-        plan_arrays = {k[5:]: f[k] for k in f.files if k.startswith("plan_")}
-    prior = {n: getattr(stats, d)(*args, **kwds) for n, (d, args, kwds) in meta["prior"].items()}
-    return Posterior(
-        param_samples=arrays["param_samples"], point_samples=arrays["point_samples"],
-        noise_samples=arrays["noise_samples"], noise_names=meta["noise_names"],
-        pixels=arrays["pixels"], approx_points=arrays["approx_points"],
-        sigma_px=meta["sigma_px"], sigma_scene=sigma_scene, prior=prior, tau=arrays["tau"],
-        ess=arrays["ess"], n_steps=meta["n_steps"], burn=meta["burn"],
-        n_walkers=meta["n_walkers"], converged=meta["converged"],
-        acceptance=meta["acceptance"], imh_acceptance=meta["imh_acceptance"],
-        laplace_cov8=arrays["laplace_cov8"], laplace_cov7=arrays["laplace_cov7"],
-        map_params=arrays["map_params"], map_points=arrays["map_points"],
-        map_point_covariance=arrays["map_point_covariance"],
-        diagnostics=None if meta.get("diagnostics") is None else
-        ChainDiagnostics.from_dict(meta["diagnostics"]), wall_samples=wall_samples,
-        plan=_load_plan(plan_arrays), outlier_prob=outlier_prob)
-
-
-def _load_plan(arrays):
-    """The FloorPlan saved with a floor-plan posterior, or None."""
-    return FloorPlan.from_arrays(arrays) if arrays else None
-
+    return Posterior(**read_posterior(path))

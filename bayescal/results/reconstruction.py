@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from ..sensor.laser import triangulate_geo
+
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
            "reconstruct_posterior",
            "reconstruct_frames",
@@ -153,13 +155,14 @@ def propagate(theta, cov_theta, pixels, pixel_cov):
     """Triangulate ``pixels`` at ``theta`` with first-order uncertainty.
 
     ``cov = J_theta C_theta J_theta^T + J_px Sigma_px J_px^T`` with the analytic
-    Jacobians of :func:`~bayescal.sensor.laser.triangulate_theta`.
+    Jacobians of :func:`~bayescal.sensor.laser.triangulate_theta` (or, with the
+    laser pose, :func:`~bayescal.sensor.pose.triangulate_pose_theta`).
 
     Parameters
     ----------
-    theta : ndarray, shape (7,)
-        Identifiable parameters.
-    cov_theta : ndarray, shape (7, 7)
+    theta : ndarray, shape (7,) or (11,)
+        Identifiable parameters (then the laser pose, misaligned model).
+    cov_theta : ndarray, shape (7, 7) or (11, 11)
         Their covariance (NaN entries count as 0).
     pixels : ndarray, shape (M, 2)
         px.
@@ -173,19 +176,16 @@ def propagate(theta, cov_theta, pixels, pixel_cov):
     covariance : ndarray, shape (M, 3, 3)
         mm^2.
     """
-    from ..sensor.laser import triangulate_theta
-
-    pts, _, dpix, dth = triangulate_theta(theta, pixels, jacobian=True)
+    pts, _, dpix, dth = triangulate_geo(theta, pixels, jacobian=True)
     C = np.nan_to_num(np.asarray(cov_theta, float))
     cov = dth @ C @ np.swapaxes(dth, -1, -2) + dpix @ pixel_cov @ np.swapaxes(dpix, -1, -2)
     return pts, cov
 
 
 def _noisy_triangulation(theta, sigma_px, pixels, pixel_cov, rng):
-    """Each draw ``theta[s]`` (S, 7) triangulates the pixels (M, 2) perturbed by its pixel
-    noise: ``sigma_px[s]`` (S,), or ``pixel_cov`` (M, 2, 2) or (2, 2) px^2; (S, M, 3) mm."""
-    from ..sensor.laser import triangulate_theta
-
+    """Each draw ``theta[s]`` (S, 7) or (S, 11) triangulates the pixels (M, 2) perturbed by
+    its pixel noise: ``sigma_px[s]`` (S,), or ``pixel_cov`` (M, 2, 2) or (2, 2) px^2;
+    (S, M, 3) mm."""
     z = rng.standard_normal((len(theta),) + pixels.shape)
     if pixel_cov is None:
         noisy = pixels + np.asarray(sigma_px)[:, None, None] * z
@@ -194,7 +194,7 @@ def _noisy_triangulation(theta, sigma_px, pixels, pixel_cov, rng):
                                                pixels.shape[:-1] + (2, 2)))
         noisy = pixels + np.einsum("mij,smj->smi", L, z)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return triangulate_theta(theta[:, None, :], noisy)[0]
+        return triangulate_geo(theta[:, None, :], noisy)[0]
 
 
 class Reconstructor:
@@ -208,13 +208,14 @@ class Reconstructor:
 
     Parameters
     ----------
-    theta : ndarray, shape (7,)
-        Identifiable parameters (posterior mean or least-squares solution).
-    cov_theta : ndarray, shape (7, 7)
+    theta : ndarray, shape (7,) or (11,)
+        Identifiable parameters (posterior mean or least-squares solution), then the
+        laser pose with the misaligned model.
+    cov_theta : ndarray, shape (7, 7) or (11, 11)
         Their covariance.
     sigma_px : float
         Pixel noise of new pixels, px (default of :meth:`__call__`).
-    theta_samples : ndarray, shape (S, 7), optional
+    theta_samples : ndarray, shape (S, 7) or (S, 11), optional
         Posterior draws (enable the check and the sampled fallback).
     sigma_samples : ndarray, shape (S,), optional
         Their pixel noise, px (default ``sigma_px``).
@@ -380,13 +381,14 @@ def _sampled_posterior(post, pixels, approx_points, sigma_scene, level, max_samp
                        pixel_cov):
     """The Monte-Carlo path (and the only one with approximate points for new pixels)."""
     from .._validation import as_points
+    from ..likelihood.misaligned import MisalignedLikelihood
     from ..likelihood.points import LaserLikelihood
     from ..likelihood.points import draw_points as _draw_points
-    from ..sensor.laser import cone_point_theta
+    from ..sensor.laser import cone_points_geo
 
     idx = np.linspace(0, post.n_samples - 1, min(int(max_samples), post.n_samples))
     idx = idx.round().astype(int)
-    theta = post.theta_samples[idx]
+    theta = post.geometry_samples[idx]             # (S, 7), or (S, 11) with the pose
     sig = post._sigma_px_samples()[idx]
     if approx_points is None:
         return Reconstruction(_noisy_triangulation(theta, sig, pixels, pixel_cov, rng), level)
@@ -397,16 +399,17 @@ def _sampled_posterior(post, pixels, approx_points, sigma_scene, level, max_samp
     if sigma_scene is None and "kappa" not in post.noise_names:
         raise ValueError("sigma_scene is required with approx_points (the scene noise "
                          "was given, not inferred, at calibration)")
-    lik = LaserLikelihood(pixels, approx,
-                          sigma_px=None if "sigma_px" in post.noise_names else post.sigma_px,
-                          sigma_scene=sigma_scene)
+    kw = {"prior": post.prior} if post.model == "misaligned" else {}
+    lik = (MisalignedLikelihood if kw else LaserLikelihood)(
+        pixels, approx, sigma_px=None if "sigma_px" in post.noise_names else post.sigma_px,
+        sigma_scene=sigma_scene, **kw)
     ref = {n: float(np.exp(np.mean(post.noise_samples[:, k])))
            for k, n in enumerate(post.noise_names) if n in ("sigma_px", "kappa")}
     lik.set_reference_noise(**ref)
     psi = np.concatenate([theta, post._noise_for(lik, idx)], axis=1)
     q0 = lik.initial_q(theta.mean(axis=0))
     q, _ = _draw_points(lik, psi, q0, rng, n_mh=2, n_iter=6)
-    return Reconstruction(cone_point_theta(theta[:, None, :], q), level)
+    return Reconstruction(cone_points_geo(theta[:, None, :], q), level)
 
 
 def reconstruct_frames(result, frames, **kwargs):

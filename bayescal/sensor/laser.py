@@ -29,6 +29,8 @@ __all__ = [
     "triangulate_plane",
     "pixel_azimuth",
     "cone_distance",
+    "cone_points_geo",
+    "triangulate_geo",
 ]
 
 
@@ -292,3 +294,59 @@ def cone_distance(h, beta, points):
     points = as_finite_array(points, "points", last_dim=3)
     rho = np.hypot(points[..., 0], points[..., 1])
     return rho * np.cos(beta) - (points[..., 2] + h) * np.sin(beta)
+
+
+def cone_points_geo(geo, q, *, jacobian=False):
+    """Cone points above the scene positions ``q`` for a geometry of 7 or 11 numbers.
+
+    Parameters
+    ----------
+    geo : ndarray, shape (..., 7) or (..., 11)
+        ``theta`` (aligned cone) or ``(theta, pose)``.
+    q : ndarray, shape (..., 2)
+        Horizontal positions, mm.
+    jacobian : bool
+
+    Returns
+    -------
+    points : ndarray, shape (..., 3)
+        mm.
+    d_q : ndarray, shape (..., 3, 2)
+        Only with ``jacobian=True``.
+    d_geo : ndarray, shape (..., 3, 7) or (..., 3, 11)
+        Only with ``jacobian=True``.
+    """
+    geo = np.asarray(geo, dtype=float)
+    if geo.shape[-1] == 7:
+        return cone_point_theta(geo, q, jacobian=jacobian)
+    out = cone_point_pose_theta(geo[..., :7], geo[..., 7:], q, jacobian=jacobian)
+    if not jacobian:
+        return out
+    pts, dq, dth, dpose = out
+    return pts, dq, np.concatenate([dth, dpose], axis=-1)
+
+
+def triangulate_geo(geo, pixels, *, jacobian=False):
+    """Triangulate pixels for a geometry of 7 (aligned cone) or 11 numbers (internal).
+
+    Parameters
+    ----------
+    geo : ndarray, shape (..., 7) or (..., 11)
+        ``theta``, or ``(theta, pose)``.
+    pixels : ndarray, shape (..., 2)
+    jacobian : bool
+
+    Returns
+    -------
+    points, valid[, d_pixels, d_geo]
+        As :func:`triangulate_theta`, with ``d_geo``
+        (..., 3, 7) or (..., 3, 11).
+    """
+    geo = np.asarray(geo, dtype=float)
+    if geo.shape[-1] == 7:
+        return triangulate_theta(geo, pixels, jacobian=jacobian)
+    out = triangulate_pose_theta(geo[..., :7], geo[..., 7:], pixels, jacobian=jacobian)
+    if not jacobian:
+        return out
+    pts, valid, dpix, dth, dpose = out
+    return pts, valid, dpix, np.concatenate([dth, dpose], axis=-1)

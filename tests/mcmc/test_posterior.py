@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 import bayescal as bc
-from bayescal.results.posterior import _ARRAYS
+from bayescal.results.posterior_file import ARRAYS as _ARRAYS
 
 
 @pytest.fixture(scope="module")

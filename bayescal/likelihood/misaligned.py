@@ -1,0 +1,88 @@
+"""The per-point likelihood with a misaligned laser cone (tilted and offset).
+
+The aligned model (:class:`~bayescal.likelihood.points.LaserLikelihood`) puts the
+cone's apex at ``(0, 0, -h)`` with its axis along z. A hand-assembled sensor has the
+cone tilted by ``(tilt_x, tilt_y)`` and its apex offset by ``(offset_x, offset_y)``
+(convention: ``docs/conventions.md``). This likelihood adds those four numbers to the
+geometry: the unknown geometry is ``g = (theta (7), pose (4))``, 11 numbers.
+
+The latent point stays parameter-independent: its horizontal position ``q = (x, y)``
+where it meets the wall, with ``z`` from the tilted cone above ``(x, y)``
+(:func:`~bayescal.sensor.pose.cone_point_pose_theta`). The Jeffreys point prior
+``|J_q^T J_q|^(1/2)`` keeps its form: it is the information of ``q`` in the
+misaligned model (``docs/bayes.md``, "The misaligned model").
+
+For the samplers, the pose enters as the first four *extra globals* (before the
+noise levels and the outlier fraction): ``psi = (theta (7), pose (4), extras...)``,
+with the pose's prior from :class:`~bayescal.likelihood.priors.Prior`
+(``pose_dists``). The analytic collapsed gradient is not written for the pose, so
+the sampler runs without its gradient move here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sensor.camera import project_theta
+from ..sensor.laser import cone_points_geo
+from ..sensor.pose import POSE_NAMES
+from .point_algebra import normal_terms, whiten
+from .points import LaserLikelihood
+from .priors import Prior
+
+__all__ = ["MisalignedLikelihood", "N_GEO_MISALIGNED"]
+
+#: number of geometric unknowns of the misaligned model (theta then the pose)
+N_GEO_MISALIGNED = 11
+
+
+class MisalignedLikelihood(LaserLikelihood):
+    """:class:`~bayescal.likelihood.points.LaserLikelihood` on a tilted and offset cone.
+
+    Parameters are those of the aligned likelihood, plus:
+
+    Parameters
+    ----------
+    prior : Prior or dict, optional
+        Where the pose's prior is read (``Prior.pose_dists``; default zero +- 2 deg
+        tilt and 5 mm offset, :func:`~bayescal.likelihood.priors.default_pose_prior`).
+
+    Notes
+    -----
+    The geometry ``g`` (..., 11) replaces theta in ``residuals`` and the
+    per-point terms (``n_geo = 11``); ``split`` returns it first. ``extra_names``
+    starts with the four pose names.
+    """
+
+    n_geo = N_GEO_MISALIGNED
+    #: the analytic collapsed gradient covers theta and the noise, not the pose
+    grad_log_marginal = None
+
+    def __init__(self, pixels, approx_points, *, prior=None, **kw):
+        super().__init__(pixels, approx_points, **kw)
+        self.prior = prior if isinstance(prior, Prior) else Prior(prior)
+
+    @property
+    def extra_names(self):
+        """The pose's four names, then the aligned model's extra globals."""
+        return POSE_NAMES + super().extra_names
+
+    def log_prior_extra(self, extra):
+        """Log prior of the pose (first four entries) and of the other extra globals."""
+        extra = np.asarray(extra, dtype=float)
+        return (self.prior.logpdf_pose(extra[..., :4])
+                + super().log_prior_extra(extra[..., 4:]))
+
+    def _point_terms(self, theta, x, y, sig, w):
+        """The hot path's ``(rr, Cp, Cs, g0, g1)`` (see
+        :func:`~bayescal.likelihood.point_algebra.point_terms`) on the tilted cone."""
+        g = np.asarray(theta, dtype=float)[..., None, :]
+        q = np.stack(np.broadcast_arrays(x, y), -1)
+        P, dxy = cone_points_geo(g, q, jacobian=True)[:2]
+        uv, _, dPp, _ = project_theta(g[..., :7], P, jacobian=True)
+        inv_s = 1.0 / np.asarray(sig)[..., None]
+        r = whiten(self.px_white, (uv - self.pixels) * inv_s[..., None])
+        Jp = whiten(self.px_white, (dPp @ dxy) * inv_s[..., None, None], axis=-2)
+        return normal_terms(self, x, y, P[..., 2], (r[..., 0], r[..., 1]),
+                            (Jp[..., 0, 0], Jp[..., 0, 1], Jp[..., 1, 0], Jp[..., 1, 1]),
+                            (dxy[..., 2, 0], dxy[..., 2, 1]), w)

@@ -1,0 +1,107 @@
+"""model="misaligned": least squares and posterior on a tilted, offset laser cone."""
+
+import numpy as np
+import pytest
+
+import bayescal as bc
+from bayescal.sensor.pose import POSE_NAMES
+
+TILT = tuple(np.radians([1.0, 0.5]))
+OFFSET = (5.0, -5.0)
+
+
+def _room(seed, *, n_points=300, sigma_px=0.2, tilt=TILT, offset=OFFSET):
+    return bc.simulate_room(bc.SensorParams.paper(), range_mm=2500, n_points=n_points,
+                            n_walls=6, sigma_px=sigma_px, approx_error=0.03,
+                            approx_model="fig9", rng=seed, tilt=tilt, offset=offset)
+
+
+@pytest.fixture(scope="module")
+def tilted():
+    ds = _room(0)
+    fits = {m: bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                         sigma_scene=ds.sigma_scene, model=m)
+            for m in ("aligned", "misaligned")}
+    return ds, fits
+
+
+def test_noise_free_tilted_data_give_back_the_pose():
+    ds = _room(1, sigma_px=1e-3)
+    res = bc.calibrate_simultaneous(ds.pixels, ds.points, sigma_px=1e-3, sigma_scene=1e-3,
+                                    model="misaligned")
+    np.testing.assert_allclose(res.laser.to_array(), np.r_[TILT, OFFSET], atol=1e-3)
+    np.testing.assert_allclose(res.params.to_identifiable(),
+                               bc.SensorParams.paper().to_identifiable(), rtol=1e-4, atol=1e-3)
+
+
+def test_misaligned_model_takes_the_tilt_off_the_principal_point(tilted):
+    ds, fits = tilted
+    truth = bc.SensorParams.paper().to_identifiable()
+    z = {m: (r.params.to_identifiable() - truth) / np.sqrt(np.diag(r.covariance(True))[:7])
+         for m, r in fits.items()}
+    # the aligned model absorbs a 1 degree tilt into u0, v0 (tens of sds off: docs/model.md)
+    assert np.max(np.abs(z["aligned"][3:5])) > 10
+    # one replication of a correct model: |z| < 4 fails with probability ~ 4e-4 per value
+    assert np.all(np.abs(z["misaligned"]) < 4), z["misaligned"]
+    pose = fits["misaligned"].laser.to_array()
+    sd = np.sqrt(np.diag(fits["misaligned"].covariance(identifiable=True))[7:])
+    assert np.all(np.abs((pose - np.r_[TILT, OFFSET]) / sd) < 4)
+    err = {m: np.mean(np.linalg.norm(r.points - ds.points, axis=1)) for m, r in fits.items()}
+    assert err["misaligned"] < 0.7 * err["aligned"], err
+
+
+def test_result_carries_the_pose(tilted, tmp_path):
+    _, fits = tilted
+    al, mis = fits["aligned"], fits["misaligned"]
+    assert al.model == "aligned" and mis.model == "misaligned"
+    assert al.laser.is_aligned and al.laser.h == pytest.approx(al.params.h)
+    assert al.covariance(identifiable=True).shape == (7, 7)
+    assert mis.covariance(identifiable=True).shape == (11, 11)
+    assert mis.covariance().shape == (8, 8)
+    assert mis.extras["identifiable_names"][7:] == POSE_NAMES
+    assert "tilt_x" in mis.summary() and "misaligned" in mis.summary()
+    assert mis.identifiability.names[-4:] == POSE_NAMES
+    back = bc.load_result(mis.save(tmp_path / "r.json"))
+    assert back.model == "misaligned"
+    np.testing.assert_array_equal(back.laser.to_array(), mis.laser.to_array())
+    assert bc.load_result(al.save(tmp_path / "a.json")).model == "aligned"
+
+
+def test_reconstruction_uses_the_pose(tilted):
+    ds, fits = tilted
+    mis = fits["misaligned"]
+    mean, cov = mis.reconstruct(ds.pixels[:50], sigma_px=0.0)
+    expected = bc.triangulate(mis.params, ds.pixels[:50], laser=mis.laser)
+    np.testing.assert_allclose(mean, expected, rtol=1e-9)
+    fast = mis.reconstructor(sigma_px=0.0)(ds.pixels[:50])
+    np.testing.assert_allclose(fast.covariance, cov, rtol=1e-9)
+
+
+def test_bad_model_and_unsupported_combinations():
+    ds = _room(2, n_points=60)
+    with pytest.raises(ValueError, match="model must be one of"):
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                  sigma_scene=ds.sigma_scene, model="tilted")
+    with pytest.raises(NotImplementedError, match="FloorPlan"):
+        bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.2, model="misaligned")
+    with pytest.raises(NotImplementedError, match="FloorPlan"):
+        bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.2, model="misaligned")
+
+
+def test_misaligned_posterior(tmp_path):
+    ds = _room(3, n_points=150)
+    post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.2,
+                               sigma_scene=ds.sigma_scene, model="misaligned", rng=4,
+                               min_ess=300, n_samples=400, progress=False)
+    assert post.converged and post.model == "misaligned"
+    assert post.laser_samples.shape == (400, 4)
+    assert post.covariance(identifiable=True).shape == (11, 11)
+    sd = post.laser_samples.std(axis=0)
+    z = (post.laser_samples.mean(axis=0) - np.r_[TILT, OFFSET]) / sd
+    assert np.all(np.abs(z) < 4), z
+    assert "sigma_px" not in post.noise_values() and "tilt_x" not in post.noise_values()
+    back = bc.load_posterior(post.save(tmp_path / "p.npz"))
+    np.testing.assert_array_equal(back.laser_samples, post.laser_samples)
+    assert back.prior.pose_dists["tilt_x"].std() == post.prior.pose_dists["tilt_x"].std()
+    rec = post.reconstruct(ds.pixels[:20])
+    assert np.all(np.isfinite(rec.mean))
