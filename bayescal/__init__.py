@@ -8,6 +8,7 @@ classical way (sequential), and as a Bayesian posterior with emcee.
 See ``docs/`` for the model, conventions and the public API.
 """
 
+from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
 from .errors import DegenerateInputError
@@ -38,13 +39,14 @@ from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
 from .sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
-from .sensor.pose import LaserPose
+from .sensor.pose import POSE_NAMES, LaserPose
 
 __version__ = "0.1.0"
 
 __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
+    "POSE_NAMES",
     "SensorParams",
     "LaserPose",
     "project",
@@ -78,6 +80,8 @@ __all__ = [
     "Prior",
     "default_prior",
     "default_pose_prior",
+    "compare_models",
+    "ModelComparison",
     "NotConvergedWarning",
     "NotConvergedError",
     "DuplicateRowsWarning",

@@ -36,7 +36,6 @@ from ..likelihood.priors import Prior
 from ..results.calibration import (
     CalibrationResult,
     ConvergenceError,
-    covariance_8_from_identifiable,
     identifiability_report,
 )
 from ..scene.floorplan import FloorPlan
@@ -49,6 +48,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES, LaserPose
+from .fixed_points import calibrate_fixed_points
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
 
@@ -203,7 +203,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                                           for n in POSE_NAMES]])
     q0 = lik.initial_q(theta0)
     if not estimate_points:
-        return _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
+        return calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
 
     fit = _fit_map(lik, prior, theta0, q0, max_iter)
     if lik.n_noise:
@@ -379,7 +379,8 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
         extras={"point_covariance": sol.cov_points * scale, "map": sol, "noise": noise,
                 "theta": sol.theta,
                 "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
-                "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik)},
+                "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik),
+                "log_evidence": _log_evidence(lik, prior, fit)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
     if result.converged:
         m = lik.min_residual(np.concatenate([sol.theta, fit.extra(lik)]), sol.q)
@@ -389,6 +390,22 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _log_evidence(lik, prior, fit):
+    """Laplace estimate of the log evidence of the fitted model (``docs/model.md``,
+    "Which model"): the collapsed log likelihood (points integrated out) and the log
+    prior at the MAP, plus ``(d/2) log 2 pi + log det(cov)/2`` of the d geometric
+    unknowns; the noise levels and outlier fraction are held at their fitted values.
+    Comparable between the aligned and misaligned fits of the same data."""
+    sol = fit.sol
+    psi = np.concatenate([sol.theta, fit.extra(lik)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        value = (lik.laplace(psi, sol.q)[0] + prior.logpdf_theta(psi[:7])
+                 + lik.log_prior_extra(psi[7:]))
+        sign, logdet = np.linalg.slogdet(sol.cov_theta)
+    d = len(sol.theta)
+    return float(value + 0.5 * d * np.log(2 * np.pi) + 0.5 * logdet) if sign > 0 else np.nan
 
 
 def _identifiability(sol):
@@ -429,56 +446,3 @@ def _fitted_data(lik):
             "sigma_scene": (np.where(lik.w_scene > 0, 1.0 / np.where(lik.w_scene > 0,
                                                                       lik.w_scene, 1.0),
                                      np.inf) * np.ones((lik.n, 3))) if given else None}
-
-
-def _calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):
-    """Points taken as exact: pixel rows of eq. (1) and the cone through the points."""
-    from scipy.optimize import least_squares
-
-    from ..sensor.camera import project_theta
-    from ..sensor.laser import triangulate_theta
-
-    if lik.infer_px or lik.infer_scene:
-        raise ValueError("estimate_points=False needs sigma_px and sigma_scene given (not None)")
-    sig = lik.sigma_px
-    P = lik.approx
-    phi = float(prior.dists["phi"].mean())
-    # scene sd along the cone normal, per point
-    rho = np.hypot(P[:, 0], P[:, 1])
-
-    def fun(t):
-        uv, _ = project_theta(t, P)
-        b = t[6]
-        nrm = np.stack([np.cos(b) * P[:, 0] / rho, np.cos(b) * P[:, 1] / rho,
-                        np.full(len(P), -np.sin(b))], -1)
-        with np.errstate(divide="ignore"):
-            var_n = np.sum(nrm**2 / lik.w_scene**2, axis=1)       # inf where an axis is blind
-        s_n = 1.0 / np.sqrt(var_n)
-        dist = rho * np.cos(b) - (P[:, 2] + t[5]) * np.sin(b)
-        rp = prior.residuals(from_identifiable(t, phi))
-        return np.concatenate([((uv - lik.pixels) / sig).ravel(), dist * s_n, rp])
-
-    t0 = to_identifiable(init.to_array())
-    opt = least_squares(fun, t0, x_scale="jac", method="lm", xtol=1e-12, ftol=1e-12)
-    J = opt.jac
-    data_rows = opt.fun[:-8]                          # the last 8 rows are the priors
-    n_res, n_unk = len(data_rows), 7
-    red = float(data_rows @ data_rows) / max(n_res - n_unk, 1)
-    cov7 = np.linalg.inv(J.T @ J) * (1.0 if absolute_sigma else red)
-    cov8 = covariance_8_from_identifiable(opt.x, phi, cov7, float(prior.dists["phi"].var()))
-    params = SensorParams.from_array(from_identifiable(opt.x, phi))
-    pts, _ = triangulate_theta(opt.x, lik.pixels)
-    uv, _ = project_theta(opt.x, P)
-    dtheta_da = np.linalg.inv(identifiable_jacobian(opt.x, phi))[:7]
-    result = CalibrationResult(
-        method="simultaneous", params=params, points=pts, covariance=cov8,
-        covariance_identifiable=cov7,
-        residual_rms={"pixel_px": float(np.sqrt(np.mean((uv - lik.pixels) ** 2)))},
-        sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
-        converged=bool(opt.success), message=str(opt.message), nfev=int(opt.nfev),
-        identifiability=identifiability_report(J @ dtheta_da, PARAM_NAMES),
-        extras={"theta": opt.x, "reduced_chi2": red})
-    if not result.converged and raise_on_failure:
-        raise ConvergenceError(f"simultaneous calibration did not converge: {opt.message}",
-                               result=result)
-    return result

@@ -70,6 +70,7 @@ RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
 _SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "pixels", "approx_points",
+                 "log_evidence",
                  # floor plan: the walls the report draws
                  "walls", "wall_covariance", "wall_index", "azimuths",
                  # sequential: what its residual plot needs (bayescal.sequential_residuals)
@@ -434,7 +435,7 @@ class CalibrationResult:
                 names=tuple(ident["names"]), singular_values=arr(ident["singular_values"]),
                 condition_number=float(ident["condition_number"]),
                 null_directions=ident["null_directions"], rtol=float(ident["rtol"]))
-        extras = {k: (float(v) if k in ("sigma_px", "sigma_px_used") else arr(v))
+        extras = {k: (float(v) if k in ("sigma_px", "sigma_px_used", "log_evidence") else arr(v))
                   for k, v in (d.get("extras") or {}).items()}
         spe = d.get("sigma_px_estimated")
         return cls(method=d["method"], params=SensorParams(**{n: float(d["params"][n])
