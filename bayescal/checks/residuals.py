@@ -23,6 +23,7 @@ import numpy as np
 
 from .._validation import resolve_rng
 from ..sensor.camera import project
+from ..sensor.laser import cone_points_geo
 
 __all__ = ["posterior_residuals", "least_squares_residuals", "least_squares_scene_residuals",
            "noise_warnings", "draw_indices",
@@ -100,8 +101,12 @@ def _projection_jacobian(params, points):
     return J
 
 
-def _cone_tangent(params, points):
-    """Orthonormal tangent basis of the laser cone at each point, shape (N, 3, 2)."""
+def _cone_tangent(params, points, result=None):
+    """Orthonormal tangent basis of the laser cone at each point, shape (N, 3, 2) (of the
+    fitted tilted cone when ``result`` is a misaligned fit)."""
+    geo = result.geometry() if hasattr(result, "geometry") else None
+    if geo is not None and len(geo) > 7:
+        return np.linalg.qr(cone_points_geo(geo, points[:, :2], jacobian=True)[1])[0]
     rho = np.maximum(np.hypot(points[:, 0], points[:, 1]), 1e-9)
     cb, sb = np.cos(params.beta), np.sin(params.beta)
     n = np.column_stack([cb * points[:, 0] / rho, cb * points[:, 1] / rho,
@@ -159,7 +164,7 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
 
 def _local_design(result, sigma_px, sigma_scene):
     """Each point's whitened local design ``A`` (N, 5, 2): 2 pixel rows, 3 scene rows."""
-    T = _cone_tangent(result.params, result.points)
+    T = _cone_tangent(result.params, result.points, result)
     top = _projection_jacobian(result.params, result.points) @ T / sigma_px      # (N, 2, 2)
     bottom = T / np.broadcast_to(np.asarray(sigma_scene, float), result.points.shape)[..., None]
     return np.concatenate([top, bottom], axis=1)
