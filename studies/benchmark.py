@@ -311,6 +311,16 @@ def bench_sampler(timer):
     return [Row(*r) for r in sampler_rows(quick=timer.repeats < 7, large_n=LARGE_N)]
 
 
+@benchmark("misaligned")
+def bench_misaligned(timer):
+    """The misaligned model's posterior (laser cone tilt and offset sampled too) at N = 580,
+    against the aligned model on the same data in the same run; rows in
+    ``studies/bench_sampler.py`` (:func:`misaligned_rows`). Target <= 10 s per 1000 ESS."""
+    from bench_sampler import misaligned_rows
+
+    return [Row(*r) for r in misaligned_rows(quick=timer.repeats < 7)]
+
+
 #: N of the one large-N sampler row (set by --large-n; 0 = skipped)
 LARGE_N = 0
 

@@ -15,18 +15,15 @@ misaligned model (``docs/bayes.md``, "The misaligned model").
 For the samplers, the pose enters as the first four *extra globals* (before the
 noise levels and the outlier fraction): ``psi = (theta (7), pose (4), extras...)``,
 with the pose's prior from :class:`~bayescal.likelihood.priors.Prior`
-(``pose_dists``). The analytic collapsed gradient is not written for the pose, so
-the sampler runs without its gradient move here.
+(``pose_dists``). The analytic collapsed gradient (envelope theorem) covers the pose
+through the residuals' Jacobians, so the sampler keeps its gradient (HMC) move.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..sensor.camera import project_theta
-from ..sensor.laser import cone_points_geo
 from ..sensor.pose import POSE_NAMES
-from .point_algebra import normal_terms, whiten
 from .points import LaserLikelihood
 from .priors import Prior
 
@@ -55,8 +52,6 @@ class MisalignedLikelihood(LaserLikelihood):
     """
 
     n_geo = N_GEO_MISALIGNED
-    #: the analytic collapsed gradient covers theta and the noise, not the pose
-    grad_log_marginal = None
 
     def __init__(self, pixels, approx_points, *, prior=None, **kw):
         super().__init__(pixels, approx_points, **kw)
@@ -72,17 +67,3 @@ class MisalignedLikelihood(LaserLikelihood):
         extra = np.asarray(extra, dtype=float)
         return (self.prior.logpdf_pose(extra[..., :4])
                 + super().log_prior_extra(extra[..., 4:]))
-
-    def _point_terms(self, theta, x, y, sig, w):
-        """The hot path's ``(rr, Cp, Cs, g0, g1)`` (see
-        :func:`~bayescal.likelihood.point_algebra.point_terms`) on the tilted cone."""
-        g = np.asarray(theta, dtype=float)[..., None, :]
-        q = np.stack(np.broadcast_arrays(x, y), -1)
-        P, dxy = cone_points_geo(g, q, jacobian=True)[:2]
-        uv, _, dPp, _ = project_theta(g[..., :7], P, jacobian=True)
-        inv_s = 1.0 / np.asarray(sig)[..., None]
-        r = whiten(self.px_white, (uv - self.pixels) * inv_s[..., None])
-        Jp = whiten(self.px_white, (dPp @ dxy) * inv_s[..., None, None], axis=-2)
-        return normal_terms(self, x, y, P[..., 2], (r[..., 0], r[..., 1]),
-                            (Jp[..., 0, 0], Jp[..., 0, 1], Jp[..., 1, 0], Jp[..., 1, 1]),
-                            (dxy[..., 2, 0], dxy[..., 2, 1]), w)

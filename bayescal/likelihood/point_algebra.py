@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grad_terms", "point_terms", "normal_terms", "pixel_whitening", "whiten"]
+__all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
+           "whiten"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -65,6 +66,50 @@ def whiten(white, r, axis=-1):
     return np.moveaxis(out, -1, axis)
 
 
+def cone_height(theta, x, y):
+    """The laser cone's height above the scene positions ``(x, y)`` and its slopes,
+    elementwise (the hot path's form of :func:`~bayescal.sensor.laser.cone_points_geo`).
+
+    Parameters
+    ----------
+    theta : ndarray, shape (..., 7) or (..., 11)
+        theta, or theta then the pose ``(tilt_x, tilt_y, offset_x, offset_y)``.
+    x, y : ndarray, shape (..., N)
+        mm.
+
+    Returns
+    -------
+    z, dz_dx, dz_dy : ndarray, shape (..., N)
+        mm and mm/mm; z NaN where the vertical line misses the lit nappe.
+    """
+    h, T = theta[..., 5, None], np.tan(theta[..., 6, None])
+    if theta.shape[-1] == 7:
+        rho = np.sqrt(x * x + y * y)
+        return rho / T - h, x / (rho * T), y / (rho * T)
+    tx, ty, ox, oy = (theta[..., k, None] for k in range(7, 11))
+    cx, sx, cy, sy = np.cos(tx), np.sin(tx), np.cos(ty), np.sin(ty)
+    # R = Ry(ty) Rx(tx) = [[cy, sy sx, sy cx], [0, cx, -sx], [-sy, cy sx, cy cx]];
+    # o = R^T (x - ox, y - oy, h), e = R^T e_z (docs/conventions.md)
+    wx, wy = x - ox, y - oy
+    o0, o1, o2 = cy * wx - sy * h, sy * sx * wx + cx * wy + cy * sx * h, \
+        sy * cx * wx - sx * wy + cy * cx * h
+    e0, e1, e2 = -sy, cy * sx, cy * cx
+    T2 = T * T
+    A2 = T2 * e2 * e2 - e0 * e0 - e1 * e1
+    B = T2 * o2 * e2 - o0 * e0 - o1 * e1
+    C = T2 * o2 * o2 - o0 * o0 - o1 * o1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sq = np.sqrt(np.where(B * B - A2 * C >= 0, B * B - A2 * C, np.nan))
+        z = np.where(B <= 0, (-B + sq) / A2, C / (-B - sq))
+        q0, q1, q2 = o0 + z * e0, o1 + z * e1, o2 + z * e2
+        z = np.where((A2 > 0) & (q2 > 0), z, np.nan)
+        g0, g1, g2 = -2 * q0, -2 * q1, 2 * T2 * q2                  # grad f in L
+        c0 = cy * g0 + sy * sx * g1 + sy * cx * g2                  # R grad f: in C
+        c1 = cx * g1 - sx * g2
+        c2 = -sy * g0 + cy * sx * g1 + cy * cx * g2
+        return z, -c0 / c2, -c1 / c2
+
+
 def point_terms(lik, theta, x, y, sig, w):
     """Hot path of :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`: residuals and
     q-normal equations, elementwise.
@@ -74,13 +119,11 @@ def point_terms(lik, theta, x, y, sig, w):
     dozen array ops.
     Returns ``(rr, Cp, Cs, g0, g1)``: ``rr = |R|^2``, the pixel and scene
     parts of ``J_q^T J_q`` as ``(C00, C01, C11)`` triples, and the gradient.
+    ``theta`` (..., 7), or (..., 11) with the laser pose (:func:`cone_height`).
     """
-    xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
-    T = np.tan(beta)
-    rho = np.sqrt(x * x + y * y)
-    gx, gy = x / (rho * T), y / (rho * T)
-    z = rho / T - h
-    r = np.sqrt(rho * rho + z * z)
+    xi, gu, gv, u0, v0 = (theta[..., k, None] for k in range(5))
+    z, gx, gy = cone_height(theta, x, y)
+    r = np.sqrt(x * x + y * y + z * z)
     D = xi * r - z
     iD = np.where(D > 0, 1.0 / D, np.nan)
     mx, my = x * iD, y * iD
@@ -151,6 +194,8 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
         wt = 1.0
     else:
         wt = (1.0 - outlier_resp) + outlier_resp / lik.outlier_scale**2
+    if theta.shape[-1] > 7:                                 # the misaligned cone's geometry
+        return _grad_terms_general(lik, theta, x, y, sig, w, wt, outlier_resp, logit_w)
     xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
     sb = np.sin(beta)
     T = sb / np.cos(beta)
@@ -178,21 +223,45 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
            np.sum(A * (1.0 - zr) + rzw, -1),
            np.sum(A * (zr - 1.0) * dz_db - rzw * dz_db, -1)]
     if lik.n_noise:
-        _, Cp, Cs, _, _ = point_terms(lik, theta, x, y, sig, w)
-        C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
-        det = C00 * C11 - C01 * C01
+        rr_p = ru * ru + rv * rv if white is None else wu * wu + wv * wv
+        rr_s = ((x - lik.approx[:, 0]) * w[..., 0]) ** 2 \
+            + ((y - lik.approx[:, 1]) * w[..., 1]) ** 2 + ((z - lik.approx[:, 2]) * wz) ** 2
+        out += _noise_terms(lik, point_terms(lik, theta, x, y, sig, w), rr_p, rr_s, wt)
+    return _with_outlier_term(out, outlier_resp, logit_w)
 
-        def tr_cinv(B):                                     # tr(C^-1 B) per point
-            return (C11 * B[0] - 2 * C01 * B[1] + C00 * B[2]) / det
-        if lik.infer_px:
-            rr_p = ru * ru + rv * rv if white is None else wu * wu + wv * wv
-            out.append(np.sum(wt * rr_p - 2.0 + tr_cinv(Cp), -1))
-        if lik.infer_scene:
-            rr_s = ((x - lik.approx[:, 0]) * w[..., 0]) ** 2 \
-                + ((y - lik.approx[:, 1]) * w[..., 1]) ** 2 \
-                + ((z - lik.approx[:, 2]) * wz) ** 2
-            out.append(np.sum(wt * rr_s - 3.0 + tr_cinv(Cs), -1))
+
+def _noise_terms(lik, terms, rr_p, rr_s, wt):
+    """The inferred noise levels' gradient entries from the point terms at the modes and
+    each point's squared pixel (``rr_p``) and scene (``rr_s``) residuals."""
+    _, Cp, Cs, _, _ = terms
+    C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
+    det = C00 * C11 - C01 * C01
+
+    def tr_cinv(B):                                         # tr(C^-1 B) per point
+        return (C11 * B[0] - 2 * C01 * B[1] + C00 * B[2]) / det
+    out = []
+    if lik.infer_px:
+        out.append(np.sum(wt * rr_p - 2.0 + tr_cinv(Cp), -1))
+    if lik.infer_scene:
+        out.append(np.sum(wt * rr_s - 3.0 + tr_cinv(Cs), -1))
+    return out
+
+
+def _with_outlier_term(out, outlier_resp, logit_w):
     if outlier_resp is not None:
         w_frac = 1.0 / (1.0 + np.exp(-np.asarray(logit_w, dtype=float)))
         out.append(np.sum(outlier_resp - w_frac[..., None], -1))
     return np.stack(out, -1)
+
+
+def _grad_terms_general(lik, g, x, y, sig, w, wt, outlier_resp, logit_w):
+    """:func:`grad_terms` for any geometry (theta and the laser pose): the geometry's part
+    ``-sum_i wt_i J_g,i^T R_i`` from the likelihood's own residuals and Jacobians."""
+    q = np.stack(np.broadcast_arrays(x, y), -1)
+    R, Jg, _ = lik.residuals(g, q, sig, w, jacobian=True)
+    wt = np.broadcast_to(wt, R.shape[:-1])
+    out = list(np.moveaxis(-np.einsum("...n,...nk,...nkj->...j", wt, R, Jg), -1, 0))
+    if lik.n_noise:
+        out += _noise_terms(lik, lik._point_terms(g, x, y, sig, w),
+                            np.sum(R[..., :2] ** 2, -1), np.sum(R[..., 2:] ** 2, -1), wt)
+    return _with_outlier_term(out, outlier_resp, logit_w)

@@ -90,3 +90,20 @@ def test_pose_prior_by_name():
     assert prior.logpdf_pose(np.array([0.02, 0.0, 5.0, 0.0])) == pytest.approx(expected)
     with pytest.raises(ValueError, match="unknown parameter name.*tilt_z"):
         Prior({"tilt_z": stats.norm(0, 1)})
+
+
+@pytest.mark.parametrize("outliers", [False, True])
+def test_collapsed_gradient_matches_finite_differences(data, outliers):
+    # given noise, Jeffreys point prior: the log marginal is the profile likelihood and the
+    # envelope-theorem gradient is exact up to the Gauss-Newton modes' convergence
+    _, mis = _pair(data, outliers=outliers)
+    psi = np.r_[data.params.to_identifiable(), POSE, [np.log(0.05 / 0.95)] if outliers else []]
+    q0 = data.points[:, :2]
+    value, grad = mis.grad_log_marginal(psi, q0, n_iter=8)
+    assert value == pytest.approx(mis.laplace(psi, q0, n_iter=8)[0], rel=1e-12)
+    for k in range(len(psi)):
+        e = np.zeros_like(psi)
+        e[k] = 1e-5 * max(1.0, abs(psi[k]))
+        num = (mis.laplace(psi + e, q0, n_iter=8)[0]
+               - mis.laplace(psi - e, q0, n_iter=8)[0]) / (2 * e[k])
+        assert grad[k] == pytest.approx(num, rel=2e-3, abs=1e-3 * max(1.0, abs(num))), k
