@@ -42,7 +42,8 @@ def harmonic_statistic(result, check, *, rng=0):
     Parameters
     ----------
     result : CalibrationResult or Posterior
-        Unused (the statistic reads the check); part of the ``STATISTICS`` interface.
+        Its ``model`` chooses the message (a misaligned fit has the tilt free already);
+        the statistic itself reads the check.
     check : dict
         :func:`~bayescal.checks.model.predictive_check` output (``point_chi2``,
         ``point_rows``, ``azimuth``).
@@ -56,7 +57,7 @@ def harmonic_statistic(result, check, *, rng=0):
         ``expected`` (its mean under permutation), ``message``; None with fewer than
         ``MIN_POINTS`` checked points.
     """
-    del result
+    fitted_pose = getattr(result, "model", "aligned") == "misaligned"
     used = np.asarray(check["point_rows"]) > 0
     if used.sum() < MIN_POINTS:
         return None
@@ -72,7 +73,16 @@ def harmonic_statistic(result, check, *, rng=0):
             "expected": float(perm.mean()),
             "message": (f"the misfit varies around the ring as cos 2 azimuth (it explains "
                         f"{observed:.0%} of the per-point misfit, {perm.mean():.0%} by "
-                        f"chance; p = {p:.2g}): the signature of a laser cone tilted against "
-                        "the camera axis, which the aligned model hides in u0, v0 and their "
-                        "sds (docs/model.md), or of errors shared by a wall's points (give a "
-                        "floor plan)")}
+                        f"chance; p = {p:.2g}): " + (_AFTER_POSE if fitted_pose
+                                                     else _ALIGNED_HINT))}
+
+
+#: what the signature means in an aligned fit, and what to do
+_ALIGNED_HINT = ("the signature of a laser cone tilted against the camera axis, which the "
+                 "aligned model hides in u0, v0 and their sds (docs/model.md): fit with "
+                 "model=\"misaligned\" (command line: --model misaligned, or auto) and "
+                 "compare the two with bc.compare_models; or of errors shared by a wall's "
+                 "points (give a floor plan)")
+#: ... and in a fit that has the pose free already
+_AFTER_POSE = ("with the cone's tilt already fitted, errors shared by a wall's points (give "
+               "a floor plan) or a mirror or lens the model does not describe")
