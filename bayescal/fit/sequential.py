@@ -38,6 +38,8 @@ from ..results.calibration import (
 from ..scene.simulate import CalibrationData, Dataset
 from ..sensor.laser import triangulate, triangulate_plane
 from ..sensor.parameters import PARAM_NAMES, SensorParams
+from ..sensor.pose import POSE_NAMES as LASER_POSE_NAMES
+from ..sensor.pose import LaserPose
 from .sequential_stages import (
     N_STAGE1 as _N1,
 )
@@ -207,7 +209,8 @@ def sequential_residuals(result):
 
 # --------------------------------------------------------------------------- main
 def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit="cone",
-                         sigma_px=None, method="lm", max_nfev=2000, restarts=0, rng=None):
+                         sigma_px=None, method="lm", max_nfev=2000, restarts=0, rng=None,
+                         model="aligned"):
     """Sequential calibration of the paper's section II: camera, then laser.
 
     Parameters
@@ -249,6 +252,11 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
         +-10 % (uniform), drawn from ``rng``; the lowest cost wins.
     rng : numpy.random.Generator, int or None
         Randomness for ``restarts`` (unused when ``restarts == 0``).
+    model : {"aligned", "misaligned"}, optional
+        Stage 2's cone: the paper's, coaxial with the camera (``h, beta``), or tilted
+        and offset (``h, beta, tilt_x, tilt_y, offset_x, offset_y``, fitted to the laser
+        points on the calibration planes; ``result.laser``, an (11, 11) identifiable
+        covariance). With ``fit="cone"`` only.
 
     Returns
     -------
@@ -285,6 +293,10 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     init, pose0, fix_phi, sigma_px = _check_options(init, init_pose, fix_phi, sigma_px)
     if fit not in _FITS:
         raise ValueError(f"fit must be one of {_FITS}, got {fit!r}")
+    if model not in ("aligned", "misaligned"):
+        raise ValueError(f"model must be one of ('aligned', 'misaligned'), got {model!r}")
+    if model == "misaligned" and fit != "cone":
+        raise ValueError("model='misaligned' needs fit='cone' (a plane has no axis to tilt)")
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     max_nfev = _check_count(max_nfev, "max_nfev", minimum=1)
@@ -301,7 +313,7 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     info = {"grid_w": grid_w, "grid_pix": grid_pix, "laser_pix": laser_pix,
             "laser_plane": laser_plane, "planes_w": planes_w, "fix_phi": fix_phi,
             "sigma": sigma, "sigma_est": sigma_est, "rms1": rms1, "n_res1": n_res1,
-            "nfev": s1.nfev, "init": init, "room_pixels": room_pixels}
+            "nfev": s1.nfev, "init": init, "room_pixels": room_pixels, "model": model}
     if not (s1.success and np.all(np.isfinite(s1.x)) and np.isfinite(rms1)):
         _fail(f"stage 1 (camera) did not converge: {s1.message}", theta, s1, info)
     C1 = laplace_covariance(stage1_residuals(s1.x, grid_w, grid_pix, jacobian=True), sigma)
@@ -317,8 +329,10 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
 
 
 def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
-    s2 = stage2_cone(P, theta[5:], method=method, max_nfev=max_nfev)
+    x0 = np.r_[theta[5:], np.zeros(4)] if info["model"] == "misaligned" else theta[5:]
+    s2 = stage2_cone(P, x0, method=method, max_nfev=max_nfev)
     info["nfev"] += s2.nfev
+    p2 = len(s2.x)                                   # 2, or 6 with the laser pose
     theta = np.concatenate([s1.x[:5], s2.x])
     if not (s2.success and np.all(np.isfinite(s2.x)) and np.all(np.isfinite(s2.fun))):
         _fail(f"stage 2 (laser cone) did not converge: {s2.message}", theta, s1, info, C1=C1)
@@ -330,37 +344,38 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     # first-order covariance of (h, beta): laser-pixel noise + stage-1 uncertainty
     C13, A, B1, w = cone_covariance(s1.x, C1, s2.x, P, info["planes_w"], info["laser_pix"],
                                     info["laser_plane"], info["sigma"])
-    keep = [0, 1, 2, 3, 4, 11, 12]
+    keep = [0, 1, 2, 3, 4] + list(range(11, 11 + p2))
     cov7 = C13[np.ix_(keep, keep)]
     rms2 = float(np.sqrt(np.mean(s2.fun**2)))
     # identifiability of both stages together, whitened, w.r.t. the 8 paper params + pose
-    params = _params(theta, info["fix_phi"])
+    params = _params(theta[:7], info["fix_phi"])
     T = identifiable_to_paper_jacobian(params)                     # (7, 8)
     J1 = stage1_residuals(s1.x, info["grid_w"], info["grid_pix"], jacobian=True)
-    J2 = np.zeros((len(P), 13))
+    J2 = np.zeros((len(P), 11 + p2))
     J2[:, :11] = B1
     J2[:, 11:] = A
     J2 /= np.sqrt(w)[:, None]          # whitened up to the common factor 1 / sigma
-    Jall = np.vstack([np.column_stack([J1, np.zeros((len(J1), 2))]), J2])
-    J8 = np.column_stack([Jall[:, keep] @ T, Jall[:, 5:11]])
-    report = identifiability_report(J8, PARAM_NAMES + POSE_NAMES)
+    Jall = np.vstack([np.column_stack([J1, np.zeros((len(J1), p2))]), J2])
+    J8 = np.column_stack([Jall[:, keep[:7]] @ T, Jall[:, 5:11], Jall[:, 13:]])
+    report = identifiability_report(J8, PARAM_NAMES + POSE_NAMES + LASER_POSE_NAMES[:p2 - 2])
     var_pix = info["sigma"] ** 2 * w
     chi2 = stage2_chi2(s2.fun, A, var_pix, B1, C1)
+    laser = LaserPose.from_array(s2.x[2:], h=s2.x[0]) if p2 > 2 else None
     extras = {"laser_model": "cone", "stage2_covariance_hb": C13[11:, 11:],
-              "stage2": {"n_residuals": len(P), "n_unknowns": 2, "nfev": s2.nfev,
+              "stage2": {"n_residuals": len(P), "n_unknowns": p2, "nfev": s2.nfev,
                          "rms_mm": rms2, "chi2_per_dof": chi2},
               **_residual_extras(s1, J1, info, s2.fun, A, var_pix, B1, C1)}
     points = None
     if info["room_pixels"] is not None:
-        points = triangulate(params, info["room_pixels"])
-    return _result(params, theta, cov7, points, {"cone_mm": rms2}, s1, C1, P, info, report,
-                   extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + 2,
-                   message=f"stage 1: {s1.message} | stage 2: {s2.message}")
+        points = triangulate(params, info["room_pixels"], laser=laser)
+    return _result(params, theta[:7], cov7, points, {"cone_mm": rms2}, s1, C1, P, info,
+                   report, extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + p2,
+                   message=f"stage 1: {s1.message} | stage 2: {s2.message}", laser=laser)
 
 
 def _finish_plane(s1, C1, theta, P, info):
     plane, rms2 = fit_plane(P)
-    params = _params(theta, info["fix_phi"])
+    params = _params(theta[:7], info["fix_phi"])
     cov7 = np.full((7, 7), np.nan)
     cov7[:5, :5] = C1[:5, :5]
     report = _stage1_report(s1.x, params, info)
@@ -406,8 +421,8 @@ def _params(theta, phi):
 
 
 def _result(params, theta, cov7, points, rms_extra, s1, C1, P, info, report, extras, *,
-            n_res, n_unk, message, converged=True):
-    cov8 = covariance_8_from_identifiable(theta, info["fix_phi"], cov7, 0.0)
+            n_res, n_unk, message, converged=True, laser=None):
+    cov8 = covariance_8_from_identifiable(theta, info["fix_phi"], cov7[:7, :7], 0.0)
     extras.update({
         "pose": s1.x[5:].copy(), "pose_covariance": C1[5:, 5:].copy(),
         "stage1_covariance": C1, "laser_points": P,
@@ -420,7 +435,7 @@ def _result(params, theta, cov7, points, rms_extra, s1, C1, P, info, report, ext
         covariance_identifiable=cov7, residual_rms={"pixel_px": info["rms1"], **rms_extra},
         sigma_px_estimated=float(info["sigma_est"]), n_residuals=int(n_res),
         n_unknowns=int(n_unk), converged=converged, message=message, nfev=int(info["nfev"]),
-        identifiability=report, extras=extras)
+        identifiability=report, extras=extras, laser=laser)
 
 
 def _fail(message, theta, s1, info, *, C1=None):
@@ -432,7 +447,7 @@ def _fail(message, theta, s1, info, *, C1=None):
     """
     init = info["init"]
     result = None
-    for th in (theta, np.concatenate([theta[:5], [init.h, init.beta]])):
+    for th in (theta[:7], np.concatenate([theta[:5], [init.h, init.beta]])):
         if not np.all(np.isfinite(th)):
             continue
         try:

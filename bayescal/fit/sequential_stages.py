@@ -22,6 +22,7 @@ from scipy.optimize import least_squares
 from .._validation import as_finite_array, resolve_rng
 from ..sensor.camera import backproject_theta, project_theta
 from ..sensor.laser import cone_distance
+from ..sensor.pose import cone_distance_pose
 
 __all__ = ["fit_plane", "N_STAGE1", "rotation_and_jacobian", "stage1_residuals",
            "laplace_covariance", "laser_points", "cone_jacobians", "run_stage1", "stage2_cone",
@@ -159,7 +160,11 @@ def laser_points(p1, planes_w, pix, plane_idx, *, jacobian=False):
 
 
 def cone_jacobians(hb, P):
-    """d r / d (h, beta) (K, 2) and d r / d P (K, 3) of the cone distance."""
+    """d r / d (h, beta) (K, 2) and d r / d P (K, 3) of the cone distance; with ``hb`` of
+    six numbers ``(h, beta, tilt_x, tilt_y, offset_x, offset_y)`` those of the tilted,
+    offset cone (:func:`~bayescal.sensor.pose.cone_distance_pose`), d r / d params (K, 6)."""
+    if len(hb) > 2:
+        return cone_distance_pose(hb, P, jacobian=True)[1:]
     h, b = hb
     rho = np.hypot(P[:, 0], P[:, 1])
     A = np.column_stack([np.full(len(P), -np.sin(b)),
@@ -200,8 +205,10 @@ def run_stage1(grid_w, grid_pix, init, pose0, *, method, max_nfev, restarts, rng
 
 
 def stage2_cone(P, hb0, *, method, max_nfev):
+    """The laser cone through the laser points ``P`` (K, 3): ``(h, beta)``, or with six
+    starting values the tilted, offset cone (misaligned model)."""
     def fun(hb):
-        return cone_distance(hb[0], hb[1], P)
+        return cone_distance_pose(hb, P) if len(hb) > 2 else cone_distance(hb[0], hb[1], P)
 
     def jac(hb):
         return cone_jacobians(hb, P)[0]
@@ -215,7 +222,8 @@ def stage2_chi2(r, A, var_pix, B1, C1):
     The first-order covariance of the stage-2 residuals under pixel noise and
     stage-1 uncertainty is ``S = diag(var_pix) + B1 C1 B1^T``. With ``r`` the
     least-squares residuals, ``min_d (r - A d)^T S^-1 (r - A d)`` is then
-    chi-square with K - 2 degrees of freedom; it is returned divided by K - 2.
+    chi-square with K - p degrees of freedom (p = 2 cone parameters, 6 for the tilted
+    cone); it is returned divided by K - p.
     Values far above 1 mean the laser points are off the fitted planes or cone by
     more than that explains (e.g. errors of the measured pattern points, which the
     method does not model), and the (h, beta) covariance is then too small.
@@ -228,12 +236,13 @@ def stage2_chi2(r, A, var_pix, B1, C1):
     x = solve_triangular(L, r, lower=True)
     Y = solve_triangular(L, A, lower=True)
     d = np.linalg.lstsq(Y, x, rcond=None)[0]
-    return float(np.sum((x - Y @ d) ** 2) / max(len(r) - 2, 1))
+    return float(np.sum((x - Y @ d) ** 2) / max(len(r) - A.shape[1], 1))
 
 
 # --------------------------------------------------------------------------- covariance
 def cone_covariance(p1, C1, hb, P, planes_w, laser_pix, laser_plane, sigma):
-    """First-order covariance of the camera, the pose and ``(h, beta)`` together.
+    """First-order covariance of the camera, the pose and ``(h, beta)`` together (and of
+    the laser cone's tilt and offset when ``hb`` has their six numbers).
 
     ``(h, beta) = G_pix d(pixels) + G_1 d(p1)`` with ``G = -(A^T A)^-1 A^T B``
     (implicit-function theorem at the stage-2 solution): laser-pixel noise
@@ -241,10 +250,10 @@ def cone_covariance(p1, C1, hb, P, planes_w, laser_pix, laser_plane, sigma):
 
     Returns
     -------
-    C13 : ndarray, shape (13, 13)
-        Order ``p1`` then ``(h, beta)`` (mm, rad).
-    A : ndarray, shape (K, 2)
-        d cone distance / d (h, beta).
+    C13 : ndarray, shape (13, 13) or (17, 17)
+        Order ``p1`` then ``(h, beta)`` (mm, rad), then the laser pose.
+    A : ndarray, shape (K, 2) or (K, 6)
+        d cone distance / d (h, beta[, pose]).
     B1 : ndarray, shape (K, 11)
         d cone distance / d p1.
     w : ndarray, shape (K,)
@@ -258,7 +267,7 @@ def cone_covariance(p1, C1, hb, P, planes_w, laser_pix, laser_plane, sigma):
     w = np.sum(g_pix**2, axis=1)
     G1 = -Minv @ A.T @ B1
     cov_hb_pix = sigma**2 * Minv @ (A.T * w) @ A @ Minv
-    C13 = np.zeros((13, 13))
+    C13 = np.zeros((11 + len(hb),) * 2)
     C13[:11, :11] = C1
     C13[11:, 11:] = cov_hb_pix + G1 @ C1 @ G1.T
     C13[:11, 11:] = C1 @ G1.T

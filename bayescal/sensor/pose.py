@@ -32,6 +32,7 @@ __all__ = [
     "pose_rotation",
     "triangulate_pose_theta",
     "cone_point_pose_theta",
+    "cone_distance_pose",
 ]
 
 POSE_NAMES = ("tilt_x", "tilt_y", "offset_x", "offset_y")
@@ -327,3 +328,47 @@ def _cone_point_jacobians(pts, Q, R, dR, T, W0, z):
     dpose[..., 2, :2] = inv[..., None] * dfdtilt
     dpose[..., 2, 2:] = -inv[..., None] * gC[..., :2]
     return dxy, dth, dpose
+
+
+def cone_distance_pose(params, points, *, jacobian=False):
+    """Signed distance of points from a tilted, offset laser cone (sequential stage 2).
+
+    With apex ``A = (offset_x, offset_y, -h)``, unit axis ``a`` (the convention of
+    :class:`LaserPose`) and ``d = P - A``: ``r = |d - (d . a) a| cos(beta) - (d . a)
+    sin(beta)``, the distance from the cone's surface near its lit nappe, positive
+    outside the cone (zero pose: :func:`~bayescal.sensor.laser.cone_distance`).
+
+    Parameters
+    ----------
+    params : array_like, shape (6,)
+        ``(h, beta, tilt_x, tilt_y, offset_x, offset_y)`` (mm, rad, rad, rad, mm, mm).
+    points : ndarray, shape (K, 3)
+        Points in frame C, mm.
+    jacobian : bool
+
+    Returns
+    -------
+    r : ndarray, shape (K,)
+        mm.
+    d_params : ndarray, shape (K, 6)
+        Only with ``jacobian=True``.
+    d_points : ndarray, shape (K, 3)
+        Only with ``jacobian=True``.
+    """
+    h, b, tx, ty, ox, oy = np.asarray(params, dtype=float)
+    a = np.array([np.cos(tx) * np.sin(ty), -np.sin(tx), np.cos(tx) * np.cos(ty)])
+    d = np.asarray(points, dtype=float) - np.array([ox, oy, -h])
+    za = d @ a
+    perp = d - za[:, None] * a
+    rp = np.linalg.norm(perp, axis=1)
+    r = rp * np.cos(b) - za * np.sin(b)
+    if not jacobian:
+        return r
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dP = np.cos(b) * perp / rp[:, None] - np.sin(b) * a
+        dr_da = -(np.cos(b) * za / rp + np.sin(b))[:, None] * d
+    da_dtx = np.array([-np.sin(tx) * np.sin(ty), -np.cos(tx), -np.sin(tx) * np.cos(ty)])
+    da_dty = np.array([np.cos(tx) * np.cos(ty), 0.0, -np.cos(tx) * np.sin(ty)])
+    dpar = np.column_stack([dP[:, 2], -rp * np.sin(b) - za * np.cos(b), dr_da @ da_dtx,
+                            dr_da @ da_dty, -dP[:, 0], -dP[:, 1]])
+    return r, dpar, dP

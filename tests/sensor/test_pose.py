@@ -176,3 +176,29 @@ def test_cone_point_is_on_the_tilted_cone(sensor, rng, pose):
     for k in range(2):
         num = fd(lambda q: cone_point_pose_theta(th, pose, q), xy, k, 1e-4)
         np.testing.assert_allclose(dxy[..., k], num, rtol=1e-5, atol=1e-7)
+
+
+def test_cone_distance_pose_is_the_aligned_distance_at_zero_pose_and_has_exact_jacobians():
+    from bayescal.sensor.laser import cone_distance
+    from bayescal.sensor.pose import cone_distance_pose
+
+    rng = np.random.default_rng(0)
+    P = rng.normal(0, 1000, (30, 3))
+    np.testing.assert_allclose(cone_distance_pose([200.0, 1.0, 0, 0, 0, 0], P),
+                               cone_distance(200.0, 1.0, P), atol=1e-9)
+    x = np.array([200.0, 1.0, 0.02, -0.01, 4.0, -3.0])
+    _, J, dP = cone_distance_pose(x, P, jacobian=True)
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = 1e-6 * max(1.0, abs(x[k]))
+        num = (cone_distance_pose(x + e, P) - cone_distance_pose(x - e, P)) / (2 * e[k])
+        np.testing.assert_allclose(J[:, k], num, rtol=1e-5, atol=1e-6 * np.abs(num).max())
+    for k in range(3):
+        E = np.zeros(3)
+        E[k] = 1e-4
+        num = (cone_distance_pose(x, P + E) - cone_distance_pose(x, P - E)) / 2e-4
+        np.testing.assert_allclose(dP[:, k], num, atol=1e-7)
+    pose = bc.LaserPose(*x[2:], h=200.0)
+    on = bc.cone_point(bc.SensorParams.paper().replace(beta=1.0), P[:, :2], laser=pose)
+    ok = np.isfinite(on[:, 2])
+    np.testing.assert_allclose(cone_distance_pose(x, on[ok]), 0.0, atol=1e-9)
