@@ -61,7 +61,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
-                     outliers=True):
+                     outliers=True, pixel_cov=None):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -122,6 +122,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         row's posterior probability of being one. On clean data it moves the
         posterior by a few hundredths of a sd (``tests/mcmc/test_sampling.py``).
         ``False``: the pure model. The same with a :class:`~bayescal.FloorPlan`.
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``): the
+        noise of pixel i is ``sigma_px^2 pixel_cov_i``, ``sigma_px`` a scale on them
+        (1.0: as they are), as in :func:`bayescal.calibrate_simultaneous`.
 
     Returns
     -------
@@ -151,12 +155,12 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                          outliers=outliers)
+                          outliers=outliers, pixel_cov=pixel_cov)
     ndim = 7 + len(lik.extra_names)
     check_walkers(n_walkers, ndim)
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init,
-                                     outliers=outliers)
+                                     outliers=outliers, pixel_cov=pixel_cov)
     psi_map, cov_map, q_map = _map_start(lik, map_res)
     # the sampler's ring radius is taken at the points' median range (docs/bayes.md sec. 3)
     lik.reference_range = float(np.median(np.hypot(map_res.points[:, 0], map_res.points[:, 1])))
