@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
+from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
            "run_reconstruct", "run_report", "points_csv"]
@@ -167,6 +168,8 @@ def _bayes(job):
         kw["init"] = job.nominal
     if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
         kw["outliers"] = False
+    if uses_pixel_cov(job.method, data, job.plan):
+        kw["pixel_cov"] = data.pixel_cov
     if job.plan is None:
         post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
                                    sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
@@ -201,13 +204,15 @@ def _least_squares(job):
         if job.sigma_px_how == "given":
             kw["sigma_px"] = job.sigma_px
         return bc.calibrate_sequential(job.calib, **kw)
-    if job.plan is not None:
-        return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
-                                         prior=job.prior, outliers=job.outliers, **kw)
-    from .jobs import uses_pixel_cov
-
     if uses_pixel_cov(job.method, job.data, job.plan):
         kw["pixel_cov"] = job.data.pixel_cov
+    if job.plan is not None:
+        # calibrate_simultaneous does not pass pixel_cov on to the floor plan yet: the
+        # floor-plan least squares it dispatches to, called directly
+        from ..fit.floorplan import calibrate_plan
+
+        return calibrate_plan(job.data.pixels, job.plan, sigma_px=job.sigma_px,
+                              prior=job.prior, outliers=job.outliers, **kw)
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, **kw)

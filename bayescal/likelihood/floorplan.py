@@ -17,17 +17,14 @@ parameters put it::
 
     p(pixel_i | psi) = int_{t < c_j} p_j(pixel_i | t) pi(t) dt + int_{t > c_j} p_{j+1}(...)
 
-Each piece is a Laplace integral truncated at the corner (a normal CDF), so a
-point near a corner moves to the neighbouring wall smoothly as the walls move,
-and a point far from it contributes to its own wall only (the other piece's
-CDF is ~0). This is the exact model to the Laplace approximation's order, not a
-mixture with arbitrary weights (``docs/floorplan.md``).
+Each piece is a Laplace integral truncated at the corner (a normal CDF): a point near
+a corner moves to the neighbouring wall smoothly as the walls move; the exact model to
+the Laplace approximation's order, not a mixture with arbitrary weights (``docs/floorplan.md``).
 
-**Point prior.** Jeffreys, ``pi(t | psi) ∝ |J_t^T J_t|^(1/2)`` (at a reference
-noise level when ``sigma_px`` is inferred), as in
-:class:`~bayescal.likelihood.points.LaserLikelihood`: a flat prior would let the N
-incidental azimuths bias the parameters (Neyman-Scott, ``docs/bayes.md``).
-With a 1-D latent the Laplace step then gives the profile likelihood.
+**Point prior.** Jeffreys, ``pi(t | psi) ∝ |J_t^T J_t|^(1/2)`` (at a reference noise
+when ``sigma_px`` is inferred), as in :class:`~bayescal.likelihood.points.LaserLikelihood`
+(a flat prior biases, Neyman-Scott, ``docs/bayes.md``); the Laplace step is then the
+profile likelihood.
 
 **Per-point pixel covariances** (``pixel_cov``, e.g. from
 :func:`bayescal.extract_laser`): the noise of pixel i is ``sigma_px^2 pixel_cov_i``;
@@ -67,6 +64,7 @@ from .points import NOISE_BOUNDS
 __all__ = ["PlanLikelihood"]
 
 _LOG2PI = np.log(2 * np.pi)
+MAX_STEP = 0.1     #: largest Gauss-Newton step of a point's azimuth, rad
 
 
 class PlanLikelihood:
@@ -278,7 +276,8 @@ class PlanLikelihood:
         Returns ``rr*`` (squared residual at the mode), ``t*``, ``C = J^T J`` and
         ``log(H / C)``, ``H = C + r . r''`` the full Hessian (second derivative by
         a forward difference of step ``h`` rad): Gauss-Newton's ``C`` alone left
-        a 0.003-nat error per point, the full Hessian's Laplace step ~1e-4.
+        a 0.003-nat error per point, the full Hessian's Laplace step ~1e-4. Steps are
+        clipped at ``MAX_STEP`` rad (loose along-ring ``pixel_cov``: ``docs/images.md``).
         """
         pu, pv = self.pixels[sel, 0], self.pixels[sel, 1]
         white = None if self.px_white is None else self.px_white[sel]
@@ -288,11 +287,13 @@ class PlanLikelihood:
             du, dv = _whiten_pair(white, du, dv)
             C = du * du + dv * dv
             g = du * ru + dv * rv
-            step = g / C
+            full = g / C
+            step = np.clip(full, -MAX_STEP, MAX_STEP)
             if it == n_iter:
                 break
             t = t - step
-        rr = ru * ru + rv * rv - g * step          # remaining gain of the quadratic model
+        # remaining gain of the quadratic model (of the clipped step where clipped)
+        rr = ru * ru + rv * rv + np.where(step == full, -g * step, (C * step - 2 * g) * step)
         du2, dv2 = _whiten_pair(white, *self._pixel_terms(theta, t + h, d, ca, sa)[2:])
         H = C + (ru * (du2 - du) + rv * (dv2 - dv)) / h
         return rr, t - step, C, np.log(np.where(H > 0, H / C, 1.0))
