@@ -225,7 +225,8 @@ def least_squares_scene_residuals(result, pixels, approx_points, sigma_px, sigma
 
 
 def _plan_z(result, raw, sigma_px, eps=1e-6):
-    """One standardized residual per point of a floor-plan fit, shape (N, 2) (column 1 NaN)."""
+    """One standardized residual per point of a floor-plan fit, shape (N, 2) (column 1 NaN);
+    with ``extras["pixel_cov"]`` in the metric of each point's covariance (whitened)."""
     from ..scene.floorplan import plan_point
 
     walls = np.asarray(result.extras["walls"], float)
@@ -235,6 +236,11 @@ def _plan_z(result, raw, sigma_px, eps=1e-6):
     d, a = walls[k, 0], walls[k, 1]
     du = (project(result.params, plan_point(theta, t + eps, d, a))
           - project(result.params, plan_point(theta, t - eps, d, a))) / (2 * eps)
+    if result.extras.get("pixel_cov") is not None:    # per-point covariances: whitened metric
+        from ..likelihood.point_algebra import pixel_whitening, whiten
+
+        white = pixel_whitening(result.extras["pixel_cov"], len(t))[0]
+        raw, du = whiten(white, raw), whiten(white, du)
     n = np.column_stack([-du[:, 1], du[:, 0]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     share = (result.n_unknowns - len(t)) / max(len(t), 1)   # 7 + 2W globals over N points

@@ -181,6 +181,9 @@ class CalibrateJob:
         The per-point outlier mixture (off with ``--no-outliers``).
     duplicate_lines : tuple of int
         Lines already named in the duplicate-rows warning.
+    figures : tuple of (str, pathlib.Path)
+        More figures for the report (caption, PNG in the output folder), e.g. the demo's
+        laser extraction overlay.
     """
 
     method: str
@@ -206,6 +209,7 @@ class CalibrateJob:
     plan: object = None
     outliers: bool = True
     duplicate_lines: tuple = ()
+    figures: tuple = ()
 
     @classmethod
     def build(cls, *, title=None, **options):

@@ -39,7 +39,7 @@ def pixel_cov_setting(value, data, method, plan, spx, spx_how):
     return scale, f"{scale:g} x the file's per-point covariances (cov_uu, cov_uv, cov_vv)"
 
 
-def _warn_loose_along(data, limit_px=1.0):
+def _warn_loose_along(data, limit_px=2.0):
     """Warn when --walls meets covariances looser than ``limit_px`` in some direction."""
     import warnings
 
@@ -48,5 +48,6 @@ def _warn_loose_along(data, limit_px=1.0):
         warnings.warn(f"{data.pixel_table.path}: with --walls, pixel sds up to {big:.3g} px "
                       "(along the ring) leave each point's azimuth to the ring's shape; "
                       "the least squares copes, the posterior may not converge "
-                      f"(docs/images.md): give sds along the ring of at most {limit_px:g} px",
+                      "(docs/images.md): give sds along the ring of about 1 px "
+                      "(extract_laser(along_sd=1))",
                       stacklevel=3)

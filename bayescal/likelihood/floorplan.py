@@ -123,14 +123,14 @@ class PlanLikelihood:
         self.n = len(self.pixels)
         self.n_walls = plan.n_walls
         self.px_white, self._px_log_det = pixel_whitening(pixel_cov, self.n)
+        self.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)
         self.infer_px = sigma_px is None
         self.sigma_px = None if self.infer_px else check_positive(sigma_px, "sigma_px")
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         ap = SensorParams.paper() if azimuth_params is None else azimuth_params
         self.assign(ap)
-        self._prior_mu = plan.param_nominal
+        self._prior_mu, self._prior_sd = plan.param_nominal, plan.param_sd
         self.reference_range = None
-        self._prior_sd = plan.param_sd
         self.primary, self.near = None, None
         self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
             outliers, outlier_scale, outlier_prior)

@@ -123,7 +123,8 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
                 "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
                 "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1),
                 "pixels": lik.pixels.copy(),
-                "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px)},
+                "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px),
+                "pixel_cov": getattr(lik, "pixel_cov", None)},
         outlier_prob=None if em is None else em[1].copy())
     result.extras["check"] = sol.check
     if result.converged:
