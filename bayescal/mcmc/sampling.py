@@ -125,7 +125,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     pixel_cov : array_like, shape (N, 2, 2), optional
         Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``): the
         noise of pixel i is ``sigma_px^2 pixel_cov_i``, ``sigma_px`` a scale on them
-        (1.0: as they are), as in :func:`bayescal.calibrate_simultaneous`.
+        (1.0: as they are; ``None`` infers it with a FloorPlan, and is refused with
+        approximate points), as in :func:`bayescal.calibrate_simultaneous`.
 
     Returns
     -------
