@@ -108,6 +108,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            n_point_mh=n_point_mh, n_iter=n_iter,
                            n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
+    post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",
                        max_steps=max_steps, on_unconverged=on_unconverged, stacklevel=3)
     return post

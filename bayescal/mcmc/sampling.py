@@ -170,6 +170,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
                        on_unconverged=on_unconverged, stacklevel=2)

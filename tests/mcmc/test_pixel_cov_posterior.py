@@ -104,3 +104,20 @@ def test_pixel_cov_shape_is_checked_by_the_sampler():
     with pytest.raises(ValueError, match="pixel_cov must have shape"):
         bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=1.0, sigma_scene=10.0,
                             pixel_cov=np.ones((3, 2, 2)), progress=False)
+
+
+def test_posterior_model_check_uses_the_covariances():
+    """Pixel noise drawn from ring covariances (0.1 px across, 1 px along): the posterior's
+    predictive check fits with the covariances and fails when they are dropped."""
+    from test_plan_pixel_cov import ring_covariance
+
+    ds = bc.simulate_room(range_mm=1000, n_points=120, sigma_px=0.0, approx_error=0.02,
+                          approx_model="gaussian", rng=0)
+    cov = ring_covariance(ds.params, ds.pixels_true, 0.1, 1.0)
+    pixels = ds.pixels_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov),
+                                        np.random.default_rng(5).standard_normal((120, 2)))
+    post = _sample(pixels, ds.approx_points, sigma_px=1.0, sigma_scene=ds.sigma_scene,
+                   pixel_cov=cov)
+    assert post.model_check().fits
+    post.pixel_cov = None                   # the same draws judged as 1 px isotropic noise
+    assert not post.model_check().fits
