@@ -72,7 +72,8 @@ def posterior_residuals(posterior, *, n_draws=100, rng=None, scene=False):
     Returns
     -------
     pixel : ndarray, shape (n_draws, N, 2)
-        Dimensionless ``(pixel - project(params_s, point_s)) / sigma_px_s``.
+        Dimensionless ``(pixel - project(params_s, point_s)) / sigma_px_s``, whitened per
+        point by the posterior's ``pixel_cov`` (N, 2, 2) when it has one.
     scene : ndarray, shape (n_draws, N, 3)
         Only with ``scene=True``: ``(approx - point_s) / sigma_scene_s``, NaN
         on axes without scene information (and everywhere for a floor plan).
@@ -88,6 +89,11 @@ def posterior_residuals(posterior, *, n_draws=100, rng=None, scene=False):
     pix, sc = posterior_predictive_residuals(
         posterior.param_samples[idx], points, posterior.pixels, approx,
         sigma_px=posterior._sigma_px_samples()[idx], sigma_scene=_scene_sd(posterior, idx))
+    cov = getattr(posterior, "pixel_cov", None)
+    if cov is not None:                     # per-point pixel covariances: whitened residuals
+        from ..likelihood.point_algebra import pixel_whitening, whiten
+
+        pix = whiten(pixel_whitening(cov, pix.shape[-2])[0], pix)
     return (-pix, -sc) if scene else -pix
 
 
@@ -144,7 +150,8 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
     raw : ndarray, shape (N, 2)
         px.
     z : ndarray, shape (N, 2)
-        Dimensionless; about N(0, 1) for a correct model. For a floor-plan
+        Dimensionless (whitened by ``extras["pixel_cov"]`` when the fit had per-point
+        covariances); about N(0, 1) for a correct model. For a floor-plan
         result (``extras["walls"]``) each point has one free coordinate, its
         azimuth, which absorbs the residual along the image direction it moves
         in: ``z[:, 0]`` is the residual across that direction divided by
@@ -156,16 +163,27 @@ def least_squares_residuals(result, pixels, sigma_px, sigma_scene=None):
         return raw, _plan_z(result, raw, sigma_px)
     if sigma_scene is None:
         frac = 1.0 - result.n_unknowns / max(result.n_residuals, 1)
-        return raw, raw / (sigma_px * np.sqrt(max(frac, 1e-12)))
+        return raw, _whiten_px(result, raw) / (sigma_px * np.sqrt(max(frac, 1e-12)))
     h = _local_leverage(result, sigma_px, sigma_scene)[:, :2]
     var = sigma_px**2 * np.clip(1.0 - h, 1e-4, 1.0)
-    return raw, raw / np.sqrt(var)
+    return raw, _whiten_px(result, raw) / np.sqrt(var)
+
+
+def _whiten_px(result, r, axis=-1):
+    """Pixel rows (..., N, 2) whitened by ``extras["pixel_cov"]`` (unchanged without)."""
+    cov = result.extras.get("pixel_cov")
+    if cov is None:
+        return r
+    from ..likelihood.point_algebra import pixel_whitening, whiten
+
+    return whiten(pixel_whitening(cov, len(result.points))[0], r, axis=axis)
 
 
 def _local_design(result, sigma_px, sigma_scene):
     """Each point's whitened local design ``A`` (N, 5, 2): 2 pixel rows, 3 scene rows."""
     T = _cone_tangent(result.params, result.points, result)
-    top = _projection_jacobian(result.params, result.points) @ T / sigma_px      # (N, 2, 2)
+    top = _whiten_px(result, _projection_jacobian(result.params, result.points) @ T / sigma_px,
+                     axis=-2)                                                      # (N, 2, 2)
     bottom = T / np.broadcast_to(np.asarray(sigma_scene, float), result.points.shape)[..., None]
     return np.concatenate([top, bottom], axis=1)
 
@@ -180,7 +198,8 @@ def _local_leverage(result, sigma_px, sigma_scene):
 def least_squares_scene_residuals(result, pixels, approx_points, sigma_px, sigma_scene):
     """Independent N(0, 1) residuals of a per-point least-squares fit, one per scene axis.
 
-    Each point's whitened residual vector ``r`` (2 pixel rows, 3 scene rows;
+    Each point's whitened residual vector ``r`` (2 pixel rows, whitened by
+    ``extras["pixel_cov"]`` when the fit had per-point covariances, 3 scene rows;
     the rows of axes with ``sigma_scene = inf`` dropped) has covariance
     ``I - H`` after the fit, ``H`` the local hat matrix of its 2 free
     coordinates on the cone: rank = the number of finite scene axes. Its
@@ -213,7 +232,8 @@ def least_squares_scene_residuals(result, pixels, approx_points, sigma_px, sigma
     fin = np.isfinite(ss)
     A = _local_design(result, sigma_px, np.where(fin, ss, np.inf))
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.concatenate([(np.asarray(pixels, float) - project(result.params, pts)) / sigma_px,
+        r = np.concatenate([_whiten_px(result, (np.asarray(pixels, float)
+                                                - project(result.params, pts)) / sigma_px),
                             np.where(fin, (np.asarray(approx_points, float) - pts) / ss, 0.0)],
                            axis=1)                                               # (N, 5)
     H = A @ np.linalg.inv(np.swapaxes(A, 1, 2) @ A) @ np.swapaxes(A, 1, 2)
@@ -230,7 +250,8 @@ def least_squares_scene_residuals(result, pixels, approx_points, sigma_px, sigma
 
 
 def _plan_z(result, raw, sigma_px, eps=1e-6):
-    """One standardized residual per point of a floor-plan fit, shape (N, 2) (column 1 NaN)."""
+    """One standardized residual per point of a floor-plan fit, shape (N, 2) (column 1 NaN);
+    with ``extras["pixel_cov"]`` in the metric of each point's covariance (whitened)."""
     from ..scene.floorplan import plan_point
 
     walls = np.asarray(result.extras["walls"], float)
@@ -240,6 +261,7 @@ def _plan_z(result, raw, sigma_px, eps=1e-6):
     d, a = walls[k, 0], walls[k, 1]
     du = (project(result.params, plan_point(theta, t + eps, d, a))
           - project(result.params, plan_point(theta, t - eps, d, a))) / (2 * eps)
+    raw, du = _whiten_px(result, raw), _whiten_px(result, du)   # per-point covariances
     n = np.column_stack([-du[:, 1], du[:, 0]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     share = (result.n_unknowns - len(t)) / max(len(t), 1)   # 7 + 2W globals over N points

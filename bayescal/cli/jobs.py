@@ -29,6 +29,7 @@ from ..checks.datafile import (
 from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
+from .pixelcov import pixel_cov_setting
 
 __all__ = ["SimulateJob", "ExtractJob",
            "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
@@ -180,6 +181,9 @@ class CalibrateJob:
         The per-point outlier mixture (off with ``--no-outliers``).
     duplicate_lines : tuple of int
         Lines already named in the duplicate-rows warning.
+    figures : tuple of (str, pathlib.Path)
+        More figures for the report (caption, PNG in the output folder), e.g. the demo's
+        laser extraction overlay.
     """
 
     method: str
@@ -205,6 +209,7 @@ class CalibrateJob:
     plan: object = None
     outliers: bool = True
     duplicate_lines: tuple = ()
+    figures: tuple = ()
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -219,7 +224,7 @@ class CalibrateJob:
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
                         else (None, "not used"))
         if data is not None and data.pixel_cov is not None:
-            spx, spx_how = _pixel_cov_setting(o["sigma_px"], data, method, plan, spx, spx_how)
+            spx, spx_how = pixel_cov_setting(o["sigma_px"], data, method, plan, spx, spx_how)
         ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
                         else sigma_scene_setting(o["sigma_scene"], data))
         if data is not None and method != "sequential":
@@ -268,29 +273,6 @@ class CalibrateJob:
             if data.approx_points is not None:
                 check_projection_domain(data.approx_points, data.point_table, nominal)
         return data, calib, plan
-
-
-def uses_pixel_cov(method, data, plan):
-    """True when the job's fit takes the data file's per-point pixel covariances."""
-    return (method == "simultaneous" and plan is None and data is not None
-            and data.pixel_cov is not None)
-
-
-def _pixel_cov_setting(value, data, method, plan, spx, spx_how):
-    """The pixel-noise setting when the file has cov_uu, cov_uv, cov_vv columns."""
-    import warnings
-
-    if not uses_pixel_cov(method, data, plan):
-        warnings.warn(f"{data.pixel_table.path}: ignoring the cov_uu, cov_uv, cov_vv columns "
-                      "(used by --method simultaneous with approximate points only)",
-                      stacklevel=2)
-        return spx, spx_how
-    if value == "infer":
-        raise UsageError("--sigma-px infer with the file's cov_uu, cov_uv, cov_vv columns: "
-                         "inferring a scale on the covariances is not supported yet; give "
-                         "--sigma-px SCALE (1 = the covariances as they are)")
-    scale = 1.0 if value is None else float(value)
-    return scale, f"{scale:g} x the file's per-point covariances (cov_uu, cov_uv, cov_vv)"
 
 
 def _read_plan(o):

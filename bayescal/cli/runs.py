@@ -12,9 +12,10 @@ import numpy as np
 
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
+from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
-           "run_reconstruct", "run_report", "points_csv"]
+           "run_reconstruct", "run_report", "points_csv", "write_laser_pixels"]
 
 
 def write_simulation(folder, ds, *, seed):
@@ -108,7 +109,6 @@ def write_images(folder, ds, *, seed):
 def run_extract(job, folder):
     """Extract the laser pixels; write ``laser.csv`` and ``overlay.png``."""
     from ..image.extract import extract_laser
-    from ..io.data import _write_csv
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
 
@@ -116,18 +116,29 @@ def run_extract(job, folder):
     if len(lp) == 0 or np.all(lp.flagged):
         return f"no laser ring found in {job.image_path}"
     p = folder.path
-    note = (f"bayescal extract {job.image_path.name}: u, v laser centre line (px); cov_*: "
-            "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
-            "noise sd; flagged: 1 = likely distractor")
-    _write_csv(p / "laser.csv", {
-        "u": lp.pixels[:, 0], "v": lp.pixels[:, 1], "cov_uu": lp.covariance[:, 0, 0],
-        "cov_uv": lp.covariance[:, 0, 1], "cov_vv": lp.covariance[:, 1, 1], "snr": lp.snr,
-        "flagged": lp.flagged.astype(float)}, header_comment=note)
+    write_laser_pixels(p / "laser.csv", lp, job.image_path.name)
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
     print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
           f"{np.median(lp.sd_normal):.3f} px; wrote {job.out / 'laser.csv'}, "
           f"{job.out / 'overlay.png'}")
+
+
+def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note=""):
+    """Write extracted laser pixels as ``bayescal extract``'s CSV (u, v, cov_uu, cov_uv,
+    cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset."""
+    from ..io.data import _write_csv
+
+    k = slice(None) if rows is None else rows
+    note = (f"bayescal extract {image_name}: u, v laser centre line (px); cov_*: "
+            "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
+            "noise sd; flagged: 1 = likely distractor" + extra_note)
+    px, cov = lp.pixels[k], lp.covariance[k]
+    _write_csv(path, {
+        "u": px[:, 0], "v": px[:, 1], "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1],
+        "cov_vv": cov[:, 1, 1], "snr": lp.snr[k], "flagged": lp.flagged[k].astype(float)},
+        header_comment=note)
+    return path
 
 
 def points_csv(path, points, cov, outlier_prob=None, *, first=None):
@@ -167,6 +178,8 @@ def _bayes(job):
         kw["init"] = job.nominal
     if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
         kw["outliers"] = False
+    if uses_pixel_cov(job.method, data, job.plan):
+        kw["pixel_cov"] = data.pixel_cov
     if job.plan is None:
         post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
                                    sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
@@ -201,13 +214,11 @@ def _least_squares(job):
         if job.sigma_px_how == "given":
             kw["sigma_px"] = job.sigma_px
         return bc.calibrate_sequential(job.calib, **kw)
+    if uses_pixel_cov(job.method, job.data, job.plan):
+        kw["pixel_cov"] = job.data.pixel_cov
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers, **kw)
-    from .jobs import uses_pixel_cov
-
-    if uses_pixel_cov(job.method, job.data, job.plan):
-        kw["pixel_cov"] = job.data.pixel_cov
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, **kw)
@@ -254,6 +265,8 @@ def _calibrate(job):
                       "was written") from None
     if job.sigma_px is not None:
         result.extras["sigma_px"] = float(job.sigma_px)
+    if uses_pixel_cov(job.method, data, job.plan):     # the model check whitens with them
+        result.extras["pixel_cov"] = data.pixel_cov
     if job.sigma_scene is not None and job.method == "simultaneous":
         result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
     if not result.converged:
@@ -320,7 +333,8 @@ def run_calibrate(job, folder):
     if job.data is not None and (recon is not None or result.points is not None):
         info = run_record(job)
         files, acc = write_report(out, result, info, data=job.data, recon=recon,
-                                  truth=job.truth, prior=_prior_of(job), title=job.title)
+                                  truth=job.truth, prior=_prior_of(job), title=job.title,
+                                  figures=job.figures)
         folder.add(*files.values())
     folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc)))
     from ..checks.datafile import located_summary

@@ -41,7 +41,7 @@ from ..sensor.parameters import (
 )
 from .schur import damped_step
 
-__all__ = ["calibrate_plan", "plan_map_start", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
+__all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
 
 
 class PlanMapSolution:
@@ -171,7 +171,7 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
 
 
 def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
-         outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+         outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
     """MAP with the pixel noise given or estimated; returns (lik, prior, sol).
 
     A staged solve from ``init`` (see :func:`_fit_from`); if its solution fails the
@@ -180,7 +180,8 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
     the prior (a fixed seed: the result is deterministic). The lowest collapsed cost
     wins; ``sol.check`` says whether it passed (:func:`~bayescal.results.floorplan.make_result`
     flags it unconverged otherwise). ``outliers``: the per-point outlier mixture,
-    solved by EM (:func:`_finish`).
+    solved by EM (:func:`_finish`). ``pixel_cov`` (N, 2, 2) px^2: per-point pixel
+    covariances (every pixel residual row whitened, :class:`PlanLikelihood`).
     """
     if not isinstance(plan, FloorPlan):
         raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
@@ -191,7 +192,7 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
         raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
     lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init,
                          outliers=outliers, outlier_scale=outlier_scale,
-                         outlier_prior=outlier_prior)
+                         outlier_prior=outlier_prior, pixel_cov=pixel_cov)
     if lik.n < 4:
         raise ValueError(f"need at least 4 laser points, got N={lik.n}")
     best = None
@@ -411,11 +412,13 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
 
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
                    max_iter=200, raise_on_failure=True, outliers=True,
-                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
     """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
 
     Called by :func:`bayescal.calibrate_simultaneous` when its second argument
-    is a :class:`~bayescal.FloorPlan`; parameters as there.
+    is a :class:`~bayescal.FloorPlan`; parameters as there. ``pixel_cov`` (N, 2, 2),
+    px^2: per-point pixel covariances, the noise of pixel i ``sigma_px^2 pixel_cov_i``
+    (``sigma_px`` a scale on them; ``None`` infers that scale).
 
     Returns
     -------
@@ -428,7 +431,7 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     """
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
-                           outlier_prior=outlier_prior)
+                           outlier_prior=outlier_prior, pixel_cov=pixel_cov)
     result = make_result(lik, sol, absolute_sigma, False)
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
@@ -437,64 +440,3 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
-
-
-def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
-                   max_iter=200, raise_on_failure=True, outliers=True,
-                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
-    """MAP start for the collapsed sampler (internal).
-
-    Returns
-    -------
-    psi_map : ndarray, shape (7 + 2W [+ 1] [+ 1],)
-        ``(theta, walls flattened[, log sigma_px][, logit w])``.
-    cov_psi : ndarray, same square shape
-        Laplace covariance (phi marginalised; ``log sigma_px`` given variance
-        ``1 / (2N)``, ``logit w`` variance 1 (about the Beta(1, 19) prior's
-        spread), both uncorrelated).
-    q_map : ndarray, shape (N, 1)
-        Point azimuths at the MAP, rad.
-    result : CalibrationResult
-        ``result.extras["likelihood"]`` is the :class:`PlanLikelihood` to sample,
-        with its candidate walls and reference noise set at the MAP.
-    """
-    lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
-                           max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
-                           outlier_prior=outlier_prior)
-    res = make_result(lik, sol, absolute_sigma, raise_on_failure)
-    res.extras["likelihood"] = lik
-    # typical horizontal range of the laser points: where a finite-range ring radius would
-    # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)
-    lik.reference_range = float(np.median(np.hypot(res.points[:, 0], res.points[:, 1])))
-    keep = np.r_[0:7, 8:len(sol.g)]
-    psi = sol.g[keep]
-    cov = sol.cov[np.ix_(keep, keep)]
-    extra, var = [], []
-    if lik.infer_px:
-        extra.append(np.log(sol.sigma_px))
-        var.append(1.0 / (2 * lik.n))
-    if lik.outliers:
-        extra.append(_logit(np.clip(sol.em[2], 1e-4, 0.5)))
-        var.append(1.0)
-    psi = np.append(psi, extra)
-    c = np.diag(np.r_[np.zeros(len(keep)), var])
-    c[:len(keep), :len(keep)] = cov
-    cov = c
-    _restrict_pieces(lik, psi, cov)
-    return psi, cov, sol.t[:, None], res
-
-
-def _restrict_pieces(lik, psi, cov, *, n_draws=200, spread=3.0):
-    """Skip the other wall's piece for points far from their corner (half the cost).
-
-    The points kept with both pieces are those whose other piece matters anywhere in
-    ``n_draws`` draws of the Laplace Gaussian widened ``spread`` times (far beyond
-    the posterior's reach), deterministic (seeded) so that a run is reproducible.
-    """
-    rng = np.random.default_rng(0)
-    try:
-        L = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        return                                          # keep both pieces everywhere
-    draws = psi + spread * rng.standard_normal((n_draws, len(psi))) @ L.T
-    lik.restrict_pieces(np.vstack([psi, draws]))

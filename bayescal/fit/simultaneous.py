@@ -103,9 +103,10 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     pixel_cov : array_like, shape (N, 2, 2), optional
         Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``). The
         noise of pixel i is then ``sigma_px^2 pixel_cov_i``: pass ``sigma_px=1.0`` to
-        take the covariances as they are (a scale must be given: inferring it is not
-        supported yet). Needs approximate points with ``estimate_points=True`` (not
-        yet a FloorPlan, nor the posterior sampler).
+        take the covariances as they are. With a FloorPlan ``sigma_px=None`` infers that
+        scale; with approximate points it is refused (on an extractor's covariances,
+        whose along-ring sd is overstated on purpose, one scale cannot fit both
+        directions: ``docs/images.md``). Needs ``estimate_points=True``.
     prior : dict, optional
         ``{name: scipy.stats frozen distribution}`` for any of the eight
         parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
@@ -169,12 +170,12 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     if model == "misaligned" and (isinstance(approx_points, FloorPlan) or not estimate_points):
         raise NotImplementedError("model='misaligned' is supported with approximate points and "
                                   "estimate_points=True (not yet with a FloorPlan)")
-    if pixel_cov is not None and (isinstance(approx_points, FloorPlan) or not estimate_points):
-        raise TypeError("pixel_cov is supported with approximate points and "
-                        "estimate_points=True only (not yet with a FloorPlan)")
-    if pixel_cov is not None and sigma_px is None:
-        raise ValueError("with pixel_cov, sigma_px is the scale on the covariances and must be "
-                         "given (1.0: as they are); inferring it is not supported yet")
+    if pixel_cov is not None and not estimate_points:
+        raise TypeError("pixel_cov needs estimate_points=True")
+    if pixel_cov is not None and sigma_px is None and not isinstance(approx_points, FloorPlan):
+        raise ValueError("with pixel_cov and approximate points, sigma_px is the scale on the "
+                         "covariances and must be given (1.0: as they are); it is inferred "
+                         "only with a FloorPlan (docs/images.md)")
     if isinstance(approx_points, FloorPlan):
         if sigma_scene is not _REQUIRED or not estimate_points:
             raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
@@ -182,7 +183,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         return calibrate_plan(pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
                               absolute_sigma=absolute_sigma, max_iter=max_iter,
                               raise_on_failure=raise_on_failure, outliers=outliers,
-                              outlier_scale=outlier_scale, outlier_prior=outlier_prior)
+                              outlier_scale=outlier_scale, outlier_prior=outlier_prior,
+                              pixel_cov=pixel_cov)
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")
@@ -438,10 +440,16 @@ def _residual_rms(lik, R, keep, w, sig):
 
 
 def _fitted_data(lik):
-    """What the result keeps of its data for its model check: pixels, approximate points
-    and the noise levels that were given (``None`` when inferred)."""
+    """What the result keeps of its data for its model check: pixels, approximate points,
+    the per-point pixel covariances and the noise levels that were given (``None`` when
+    inferred)."""
     given = not lik.infer_scene
-    return {"pixels": lik.pixels.copy(), "approx_points": lik.approx.copy(),
+    cov = None
+    if lik.px_white is not None:                       # back from L (L^T L = cov^-1)
+        a, b, c = lik.px_white.T
+        cov = np.linalg.inv(np.stack([np.stack([a * a, a * b], -1),
+                                      np.stack([a * b, b * b + c * c], -1)], -2))
+    return {"pixels": lik.pixels.copy(), "approx_points": lik.approx.copy(), "pixel_cov": cov,
             "sigma_px": None if lik.infer_px else float(lik.sigma_px),
             "sigma_scene": (np.where(lik.w_scene > 0, 1.0 / np.where(lik.w_scene > 0,
                                                                       lik.w_scene, 1.0),

@@ -52,12 +52,19 @@ def _writable(folder):
     return os.access(folder, os.W_OK | os.X_OK) and bool(mode & stat.S_IWUSR)
 
 
-def _manifest_files(folder):
+def _manifest_files(folder, *, parent=True):
+    """Files bayescal wrote in ``folder`` (its manifest), or None. A sub-folder without a
+    manifest of its own (a demo stage) counts by the files its parent's manifest lists in it."""
+    folder = pathlib.Path(folder)
     try:
-        data = json.loads((pathlib.Path(folder) / MANIFEST).read_text(encoding="utf-8"))
+        data = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
         return [str(f) for f in data.get("files", [])]
     except (OSError, ValueError, AttributeError):
-        return None
+        pass
+    up = _manifest_files(folder.absolute().parent, parent=False) if parent else None
+    prefix = folder.name + "/"
+    mine = [f[len(prefix):] for f in up or () if f.startswith(prefix)]
+    return mine or None
 
 
 def check_out(out, *, force, inputs=(), option="--out"):

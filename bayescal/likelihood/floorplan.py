@@ -6,7 +6,7 @@ laser point, its azimuth ``t_i`` (one coordinate: the point lies on its wall
 *and* on the cone)::
 
     P_i = (rho cos t_i, rho sin t_i, rho / tan(beta) - h),  rho = d_k / cos(t_i - a_k)
-    pixels_i ~ N(project(theta, P_i), sigma_px^2 I_2)
+    pixels_i ~ N(project(theta, P_i), sigma_px^2 I_2)   (or sigma_px^2 pixel_cov_i)
 
 **Which wall.** Corner ``j`` (the intersection of wall lines ``j`` and
 ``j + 1``) sits at azimuth ``c_j(d, a)``; a point at azimuth ``t < c_j`` is on
@@ -17,37 +17,25 @@ parameters put it::
 
     p(pixel_i | psi) = int_{t < c_j} p_j(pixel_i | t) pi(t) dt + int_{t > c_j} p_{j+1}(...)
 
-Each piece is a Laplace integral truncated at the corner (a normal CDF), so a
-point near a corner moves to the neighbouring wall smoothly as the walls move,
-and a point far from it contributes to its own wall only (the other piece's
-CDF is ~0). This is the exact model to the Laplace approximation's order, not a
-mixture with arbitrary weights (``docs/floorplan.md``).
+Each piece is a Laplace integral truncated at the corner (a normal CDF): a point near
+a corner moves to the neighbouring wall smoothly as the walls move; the exact model to
+the Laplace approximation's order, not a mixture with arbitrary weights (``docs/floorplan.md``).
 
-**Point prior.** Jeffreys, ``pi(t | psi) ∝ |J_t^T J_t|^(1/2)`` (at a reference
-noise level when ``sigma_px`` is inferred), as in
-:class:`~bayescal.likelihood.points.LaserLikelihood`: a flat prior would let the N
-incidental azimuths bias the parameters (Neyman-Scott, ``docs/bayes.md``).
-With a 1-D latent the Laplace step then gives the profile likelihood.
+**Point prior.** Jeffreys, ``pi(t | psi) ∝ |J_t^T J_t|^(1/2)`` (at a reference noise
+when ``sigma_px`` is inferred), as in :class:`~bayescal.likelihood.points.LaserLikelihood`
+(a flat prior biases, Neyman-Scott, ``docs/bayes.md``); the Laplace step is then the
+profile likelihood.
 
-**Outliers** (``outliers=True``, ``docs/robustness.md`` section "Floor plans"). Each
-point is an inlier with probability ``1 - w`` or an outlier whose pixel rows have
-``c`` times the noise: ``log[(1 - w) L_in + w L_out]``. The Gauss-Newton mode of a
-piece does not depend on the noise scale, so the outlier reuses each piece's
-``rr*``, ``H / C`` and ``C``. With two pixel rows and a one-dimensional latent,
-the pixel normaliser gives ``c^-2`` and the azimuth integral ``c`` (its width is
-``c`` times the inlier's, not ``c^2`` as for the 2-D latent of the per-point
-model); the Jeffreys prior, at the inlier's reference noise, is shared by both
-components and cancels in their ratio::
+**Per-point pixel covariances** (``pixel_cov``, e.g. from
+:func:`bayescal.extract_laser`): the noise of pixel i is ``sigma_px^2 pixel_cov_i``;
+each point's two pixel rows (residuals and derivatives) are whitened by ``L_i`` with
+``L_i^T L_i = pixel_cov_i^-1`` (:func:`~bayescal.likelihood.point_algebra.pixel_whitening`)
+and ``log det L_i`` joins the normaliser; ``sigma_px`` is then a scale on them.
 
-    L_out,k = exp(-rr*_k / (2 c^2 sigma^2)) (H_k / C_k)^(-1/2) / (sqrt(2 pi) c sigma sigma_ref)
-
-Truncating it at the corner on the outlier's own scale would cut an azimuth
-range ``c`` times wider (~1 rad at ``c = 100``, half a wall), where the Laplace
-step no longer describes the integral, and would make its mass depend on the
-piece skipped by :meth:`PlanLikelihood.restrict_pieces`. So the outlier takes
-each piece untruncated, weighted by the *inlier's* piece shares ``s_k``
-(``L_out = sum_k s_k L_out,k``): the outlier lies on the wall the inlier model
-puts it on, smooth in ``psi`` and unchanged by the restriction.
+**Outliers** (``outliers=True``): each point is an inlier with probability ``1 - w``
+or an outlier whose pixel rows have ``c`` times the noise, ``log[(1 - w) L_in + w L_out]``;
+the outlier reuses each piece's ``rr*``, ``H / C`` and ``C``, untruncated and weighted by
+the inlier's piece shares (the formula and why: ``docs/robustness.md``, "Floor plans").
 
 The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0,
 ..., d_{W-1}, a_{W-1}[, log sigma_px][, logit w])`` and ``q`` of shape ``(..., N, 1)``.
@@ -70,11 +58,13 @@ from .outliers import (
     combine,
     log_prior_logit_frac,
 )
+from .point_algebra import pixel_whitening, whiten
 from .points import NOISE_BOUNDS
 
 __all__ = ["PlanLikelihood"]
 
 _LOG2PI = np.log(2 * np.pi)
+MAX_STEP = 0.1     #: largest Gauss-Newton step of a point's azimuth, rad
 
 
 class PlanLikelihood:
@@ -88,6 +78,10 @@ class PlanLikelihood:
     sigma_px : float or None
         Pixel noise sd, px; ``None`` = inferred (``log sigma_px`` is the last
         sampled coordinate, log-uniform prior on ``NOISE_BOUNDS["sigma_px"]``).
+        With ``pixel_cov``, a scale on the covariances (1.0: as they are).
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances, px^2 (symmetric positive definite); noise
+        ``sigma_px^2 pixel_cov_i``, each point's pixel rows whitened by ``L_i``.
     azimuth_params : SensorParams, optional
         Sensor used to compute the pixels' azimuths that pick each point's
         candidate walls (only ``u0``, ``v0`` and the signs of ``alpha`` matter);
@@ -112,14 +106,14 @@ class PlanLikelihood:
         The corner ``j`` between them.
     reference_range : float or None
         Median horizontal range (mm) of the MAP's points, set by
-        :func:`bayescal.fit.floorplan.plan_map_start` (``docs/floorplan.md`` section 8).
+        :func:`bayescal.fit.plan_start.plan_map_start` (``docs/floorplan.md`` section 8).
     em_weights : ndarray, shape (N,), or None
         The least squares' EM weights ``(1 - r) + r / c^2`` of each point's pixel
         rows (set by :mod:`bayescal.fit.floorplan`; None = unit weights).
     """
 
     def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None, outliers=False,
-                 outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR):
+                 outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
         if not isinstance(plan, FloorPlan):
             raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
         self.pixels = as_pixels(pixels, "pixels")
@@ -128,14 +122,15 @@ class PlanLikelihood:
         self.plan = plan
         self.n = len(self.pixels)
         self.n_walls = plan.n_walls
+        self.px_white, self._px_log_det = pixel_whitening(pixel_cov, self.n)
+        self.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)
         self.infer_px = sigma_px is None
         self.sigma_px = None if self.infer_px else check_positive(sigma_px, "sigma_px")
         self.ref_sigma_px = 1.0 if self.infer_px else self.sigma_px
         ap = SensorParams.paper() if azimuth_params is None else azimuth_params
         self.assign(ap)
-        self._prior_mu = plan.param_nominal
+        self._prior_mu, self._prior_sd = plan.param_nominal, plan.param_sd
         self.reference_range = None
-        self._prior_sd = plan.param_sd
         self.primary, self.near = None, None
         self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
             outliers, outlier_scale, outlier_prior)
@@ -281,20 +276,25 @@ class PlanLikelihood:
         Returns ``rr*`` (squared residual at the mode), ``t*``, ``C = J^T J`` and
         ``log(H / C)``, ``H = C + r . r''`` the full Hessian (second derivative by
         a forward difference of step ``h`` rad): Gauss-Newton's ``C`` alone left
-        a 0.003-nat error per point, the full Hessian's Laplace step ~1e-4.
+        a 0.003-nat error per point, the full Hessian's Laplace step ~1e-4. Steps are
+        clipped at ``MAX_STEP`` rad (loose along-ring ``pixel_cov``: ``docs/images.md``).
         """
         pu, pv = self.pixels[sel, 0], self.pixels[sel, 1]
+        white = None if self.px_white is None else self.px_white[sel]
         for it in range(n_iter + 1):
             u, v, du, dv = self._pixel_terms(theta, t, d, ca, sa)
-            ru, rv = u - pu, v - pv
+            ru, rv = _whiten_pair(white, u - pu, v - pv)
+            du, dv = _whiten_pair(white, du, dv)
             C = du * du + dv * dv
             g = du * ru + dv * rv
-            step = g / C
+            full = g / C
+            step = np.clip(full, -MAX_STEP, MAX_STEP)
             if it == n_iter:
                 break
             t = t - step
-        rr = ru * ru + rv * rv - g * step          # remaining gain of the quadratic model
-        _, _, du2, dv2 = self._pixel_terms(theta, t + h, d, ca, sa)
+        # remaining gain of the quadratic model (of the clipped step where clipped)
+        rr = ru * ru + rv * rv + np.where(step == full, -g * step, (C * step - 2 * g) * step)
+        du2, dv2 = _whiten_pair(white, *self._pixel_terms(theta, t + h, d, ca, sa)[2:])
         H = C + (ru * (du2 - du) + rv * (dv2 - dv)) / h
         return rr, t - step, C, np.log(np.where(H > 0, H / C, 1.0))
 
@@ -359,7 +359,8 @@ class PlanLikelihood:
         _, _, sig = self.split(psi)
         logm, ts, Cs, lo = self._pieces(psi, n_iter=n_iter)
         # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
-        norm = -np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
+        norm = (-np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
+                + self._px_log_det)
         with np.errstate(invalid="ignore"):
             m = np.logaddexp(logm[0], logm[1])
             per_point, r = m + norm, None
@@ -435,7 +436,9 @@ class PlanLikelihood:
         d, a = np.where(s, dd[..., 1], dd[..., 0]), np.where(s, aa[..., 1], aa[..., 0])
         with np.errstate(invalid="ignore", divide="ignore"):
             u, v, du, dv = self._pixel_terms(theta, t, d, np.cos(a), np.sin(a))
-            rr = (u - self.pixels[:, 0]) ** 2 + (v - self.pixels[:, 1]) ** 2
+            ru, rv = _whiten_pair(self.px_white, u - self.pixels[:, 0], v - self.pixels[:, 1])
+            du, dv = _whiten_pair(self.px_white, du, dv)
+            rr = ru * ru + rv * rv
             lin = -0.5 * rr / sig[..., None] ** 2
             if self.outliers:
                 c = self.outlier_scale
@@ -461,6 +464,7 @@ class PlanLikelihood:
         Returns
         -------
         R : ndarray, shape (N, 2)
+            ``(project - pixels) / sigma_px``, whitened per point with ``pixel_cov``.
         J_theta : ndarray, shape (N, 2, 7)
             Only with ``jacobian=True``.
         J_wall : ndarray, shape (N, 2, 2)
@@ -472,16 +476,25 @@ class PlanLikelihood:
         if not jacobian:
             P = plan_point(theta, t, d, a)
             uv, _ = project_theta(theta, P)
-            return (uv - self.pixels) / sigma_px
+            return whiten(self.px_white, (uv - self.pixels) / sigma_px)
         P, dPt, dPth, dPw = plan_point(theta, t, d, a, jacobian=True)
         uv, _, G, Gth = project_theta(theta, P, jacobian=True)
-        R = (uv - self.pixels) / sigma_px
-        Jth = (Gth + G @ dPth) / sigma_px
-        Jw = (G @ dPw) / sigma_px
-        Jt = np.einsum("nij,nj->ni", G, dPt) / sigma_px
+        wh = self.px_white
+        R = whiten(wh, (uv - self.pixels) / sigma_px)
+        Jth = whiten(wh, (Gth + G @ dPth) / sigma_px, axis=-2)
+        Jw = whiten(wh, (G @ dPw) / sigma_px, axis=-2)
+        Jt = whiten(wh, np.einsum("nij,nj->ni", G, dPt) / sigma_px)
         return R, Jth, Jw, Jt
 
     def hard_wall_index(self, walls, t):
         """Wall of each point at azimuths ``t`` (N,) under walls (W, 2), shape (N,)."""
         c = corner_azimuths(walls[:, 0], walls[:, 1])[self.corner]
         return np.where(self._side(t, c) == 0, self.wall_pair[:, 0], self.wall_pair[:, 1])
+
+
+def _whiten_pair(white, ru, rv):
+    """Whitened pixel rows as a pair: ``ru, rv`` (..., n) with ``white`` (n, 3) or None."""
+    if white is None:
+        return ru, rv
+    out = whiten(white, np.stack([ru, rv], axis=-1))
+    return out[..., 0], out[..., 1]

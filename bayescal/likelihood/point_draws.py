@@ -65,7 +65,9 @@ def draw_points(lik, psi, q_start, rng, *, n_mh, n_iter, batch=256):
             lp = np.where(accept, lp2, lp)
             lg = np.where(accept, lg2, lg)
             acc.append(accept.mean())
-        out[lo:lo + batch] = q
+        # no draw inside the model's domain (e.g. an outlier's wide azimuth off its wall):
+        # the Laplace mode, so that every point sample stays finite
+        out[lo:lo + batch] = np.where(np.isfinite(lp)[..., None], q, qm)
     return out, float(np.mean(acc)) if acc else float("nan")
 
 

@@ -3,7 +3,7 @@
 :func:`sample_plan_posterior` is what :func:`bayescal.sample_posterior` calls when
 its second argument is a :class:`~bayescal.FloorPlan`:
 
-1. **MAP start**: :func:`bayescal.fit.floorplan.plan_map_start` gives
+1. **MAP start**: :func:`bayescal.fit.plan_start.plan_map_start` gives
    ``psi_map = (theta, d_0, a_0, ..., d_{W-1}, a_{W-1}[, log sigma_px])``, the
    Laplace covariance of *all* these globals (sensor and walls jointly, from the
    inverse Schur complement of the least squares) and the point azimuths;
@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
-from ..fit.floorplan import plan_map_start
+from ..fit.plan_start import plan_map_start
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
 from ..likelihood.priors import Prior
 from ..results.posterior import Posterior
@@ -44,7 +44,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                           init=None, moves=None, progress=True, on_unconverged="warn",
                           n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED,
                           outliers=True, outlier_scale=OUTLIER_SCALE,
-                          outlier_prior=OUTLIER_PRIOR):
+                          outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
     """Sample the posterior of the sensor, the walls of a rough plan and every laser point.
 
     Parameters
@@ -68,6 +68,10 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         plans"): ``logit w`` is sampled (``noise_names`` ends with
         ``"outlier_frac"``) and ``post.outlier_prob`` (N,) is each point's
         posterior outlier probability.
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances, px^2: the noise of pixel i is ``sigma_px^2
+        pixel_cov_i`` (``sigma_px`` a scale on them, ``None``: inferred), as in
+        :func:`bayescal.calibrate_simultaneous`.
 
     Returns
     -------
@@ -95,7 +99,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                                                       prior=prior, init=init,
                                                       outliers=outliers,
                                                       outlier_scale=outlier_scale,
-                                                      outlier_prior=outlier_prior)
+                                                      outlier_prior=outlier_prior,
+                                                      pixel_cov=pixel_cov)
     lik = map_res.extras.pop("likelihood")
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
@@ -103,6 +108,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            n_point_mh=n_point_mh, n_iter=n_iter,
                            n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
+    post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",
                        max_steps=max_steps, on_unconverged=on_unconverged, stacklevel=3)
     return post

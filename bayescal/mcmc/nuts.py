@@ -182,7 +182,6 @@ def sample_nuts(pixels, approx_points, *, sigma_px, sigma_scene, prior, q_init,
     import jax.numpy as jnp
     import numpyro
     import numpyro.distributions as dist
-    from numpyro.diagnostics import effective_sample_size, split_gelman_rubin
     from numpyro.infer import MCMC, NUTS, init_to_value
 
     jax.config.update("jax_enable_x64", True)
@@ -222,7 +221,15 @@ def sample_nuts(pixels, approx_points, *, sigma_px, sigma_scene, prior, q_init,
                 progress_bar=progress)
     t0 = time.perf_counter()
     mcmc.run(jax.random.PRNGKey(int(rng)), extra_fields=("diverging",))
-    seconds = time.perf_counter() - t0
+    return _collect(mcmc, height, n, k, time.perf_counter() - t0)
+
+
+def _collect(mcmc, height, n, k, seconds):
+    """The returned dict of :func:`sample_nuts` from a finished NumPyro run."""
+    import jax
+    import jax.numpy as jnp
+    from numpyro.diagnostics import effective_sample_size, split_gelman_rubin
+
     grouped = mcmc.get_samples(group_by_chain=True)
     a = np.asarray(grouped["a"])                                        # (chains, S, k)
     q = np.asarray(grouped["q"]).reshape(-1, n, 2)

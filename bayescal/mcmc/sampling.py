@@ -63,7 +63,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
-                     outliers=True, model="aligned"):
+                     outliers=True, model="aligned", pixel_cov=None):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -128,8 +128,13 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     model : {"aligned", "misaligned"}, optional
         The laser cone (see :func:`~bayescal.calibrate_simultaneous`): with
         ``"misaligned"`` its tilt and offset are sampled too (``post.laser_samples``
-        (S, 4)), as four extra globals of the collapsed sampler, without the gradient
-        move (``docs/bayes.md``, "The misaligned model"). Approximate points only.
+        (S, 4)), as four extra globals of the collapsed sampler (``docs/bayes.md``, "The
+        misaligned model"). Approximate points only.
+    pixel_cov : array_like, shape (N, 2, 2), optional
+        Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``): the
+        noise of pixel i is ``sigma_px^2 pixel_cov_i``, ``sigma_px`` a scale on them
+        (1.0: as they are; ``None`` infers it with a FloorPlan, and is refused with
+        approximate points), as in :func:`bayescal.calibrate_simultaneous`.
 
     Returns
     -------
@@ -164,15 +169,15 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = (MisalignedLikelihood(pixels, approx_points, prior=prior, sigma_px=sigma_px,
-                                sigma_scene=sigma_scene, outliers=outliers)
+                                sigma_scene=sigma_scene, outliers=outliers, pixel_cov=pixel_cov)
            if model == "misaligned" else
            LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                           outliers=outliers))
+                           outliers=outliers, pixel_cov=pixel_cov))
     ndim = 7 + len(lik.extra_names)
     check_walkers(n_walkers, ndim)
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
                                      sigma_scene=sigma_scene, prior=prior, init=init,
-                                     outliers=outliers, model=model)
+                                     outliers=outliers, model=model, pixel_cov=pixel_cov)
     psi_map, cov_map, q_map = _map_start(lik, map_res)
     # the sampler's ring radius is taken at the points' median range (docs/bayes.md sec. 3)
     lik.reference_range = float(np.median(np.hypot(map_res.points[:, 0], map_res.points[:, 1])))
@@ -181,6 +186,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
                        on_unconverged=on_unconverged, stacklevel=2)

@@ -249,6 +249,8 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title, che
         doc.heading("Accuracy against the simulation truth")
         doc.paragraph(f"Mean 3D error {acc['mean_error_mm']:.1f} mm, median "
                       f"{acc['median_error_mm']:.1f} mm, max {acc['max_error_mm']:.1f} mm.")
+        if truth.get("accuracy_note"):          # how the truth's points were made
+            doc.paragraph(str(truth["accuracy_note"]))
     if info.get("method") != "sequential":
         _checks_section(doc, check, flagged)
     doc.heading("Diagnostics")
@@ -257,10 +259,13 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title, che
     for key in ("plan", "corner", "predictive", "residuals", "reconstruction", "image"):
         if key in figs:
             doc.figure(*figs[key])
+    for key in sorted(k for k in figs if k.startswith("extra")):
+        doc.figure(*figs[key])
     return doc
 
 
-def write_report(out, result, info, *, data, recon=None, truth=None, prior=None, title=None):
+def write_report(out, result, info, *, data, recon=None, truth=None, prior=None, title=None,
+                 figures=()):
     """Write the figures, ``report.md`` and a self-contained ``report.html`` into ``out``.
 
     Parameters
@@ -281,6 +286,8 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     prior : dict, optional
         The priors of a least-squares run, for the sd_ratio column.
     title : str, optional
+    figures : sequence of (str, pathlib.Path), optional
+        More figures (caption, PNG file in ``out``), shown after the report's own.
 
     Returns
     -------
@@ -297,6 +304,7 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     check = None if getattr(result, "method", None) == "sequential" or result.points is None \
         else model_check(result, pixels=data.pixels, approx_points=data.approx_points, info=info)
     figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
+    figs.update({f"extra{k}": (cap, pathlib.Path(p)) for k, (cap, p) in enumerate(figures)})
     acc = accuracy(recon[0] if recon is not None else result.points, truth)
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,
                          acc=acc, truth=truth, warnings=_warnings(result, info, data),

@@ -118,7 +118,7 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
     result = CalibrationResult(
         method="simultaneous", params=params, points=points, covariance=0.5 * (cov8 + cov8.T),
         covariance_identifiable=cov[:7, :7],
-        residual_rms={"pixel_px": float(np.sqrt(np.sum(keep[:, None] * (R * sig) ** 2)
+        residual_rms={"pixel_px": float(np.sqrt(np.sum(keep[:, None] * (_raw(lik, R) * sig) ** 2)
                                                 / max(2 * np.sum(keep), 1e-300)))},
         sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
         converged=bool(sol.converged and np.all(np.isfinite(g))), message=sol.message,
@@ -130,7 +130,8 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
                 "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
                 "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1),
                 "pixels": lik.pixels.copy(),
-                "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px)},
+                "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px),
+                "pixel_cov": getattr(lik, "pixel_cov", None)},
         outlier_prob=None if em is None else em[1].copy())
     result.extras["check"] = sol.check
     if result.converged:
@@ -139,6 +140,15 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _raw(lik, R):
+    """Pixel residuals (N, 2) back in px / sigma_px: the per-point whitening undone."""
+    if getattr(lik, "px_white", None) is None:
+        return R
+    a, b, c = lik.px_white.T
+    rv = R[:, 1] / c
+    return np.stack([(R[:, 0] - b * rv) / a, rv], axis=-1)
 
 
 def _flag_failed_checks(result, chk, W):

@@ -467,8 +467,14 @@ def test_demo_small(tmp_path):
     out = tmp_path / "out"
     for f in ("index.html", "index.md", "data/laser.csv", "sequential/report.html",
               "simultaneous/report.html", "bayes/report.html", "bayes/posterior.npz",
-              "data/walls.csv", "floorplan/report.html", "floorplan/plan.png"):
+              "data/walls.csv", "floorplan/report.html", "floorplan/plan.png",
+              "data/laser_image.png", "data/laser_off.png", "image/laser.csv",
+              "image/overlay.png", "image/report.html"):
         assert (out / f).is_file(), f
+    head = [ln for ln in (out / "image" / "laser.csv").read_text().splitlines()
+            if not ln.startswith("#")][0]
+    assert head == "u,v,cov_uu,cov_uv,cov_vv,snr,flagged"      # as bayescal extract
+    assert "](overlay.png)" in (out / "image" / "report.md").read_text()
     index = (out / "index.md").read_text()
     for link in re.findall(r"\]\(([^)]+)\)", index):        # every link and figure resolves
         assert (out / link).is_file(), link
@@ -483,7 +489,10 @@ def test_demo_full_as_make_demo(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     index = (tmp_path / "out" / "index.md").read_text()
     assert "| simultaneous | ok |" in index and "| bayes | ok |" in index
-    assert "| floorplan | ok |" in index
+    assert "| floorplan | ok |" in index and "| image | ok |" in index
+    # make demo again: --force replaces the stages' folders
+    r = run("demo", "--out", "out", "--force", "--no-progress", cwd=tmp_path, timeout=1200)
+    assert r.returncode == 0, r.stdout + r.stderr
 
 
 # -- report helpers (in process) -----------------------------------------------------------

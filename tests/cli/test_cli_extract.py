@@ -104,3 +104,36 @@ def test_calibrate_reads_pixel_covariances(images):
     r = run("calibrate", "badcov.csv", "--out", "cal3", cwd=root)
     assert r.returncode == 2 and "line 5" in r.stderr and "positive definite" in r.stderr
     assert not (root / "cal3").exists()
+
+
+def test_calibrate_on_walls_with_pixel_covariances(tmp_path):
+    """extract's laser.csv (cov_uu, cov_uv, cov_vv) with --walls: least squares, an inferred
+    scale on the covariances and the posterior all take them."""
+    r = run("simulate", "--images", "--range-mm", 2500, "--n-points", 60, "--seed", 3,
+            "--out", "sim", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run("extract", "sim/image.png", "--background", "sim/image_off.png", "--out", "ex",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = run("calibrate", "ex/laser.csv", "--walls", "sim/walls.csv", "--out", "cal",
+            "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "per-point covariances" in (tmp_path / "cal" / "report.md").read_text()
+    assert "with --walls, pixel sds up to 5 px" in r.stderr          # extract's along-ring sd
+    res = bc.load_result(tmp_path / "cal" / "result.json")
+    truth = bc.SensorParams.paper()           # simulate --images renders the design sensor
+    z = (res.params.to_identifiable() - truth.to_identifiable()) / np.sqrt(
+        np.diag(res.covariance_identifiable))
+    assert np.all(np.abs(z) < 5), z
+    r = run("calibrate", "ex/laser.csv", "--walls", "sim/walls.csv", "--sigma-px", "infer",
+            "--out", "cal2", "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    # the scale on the extractor's covariances, inferred: of order one (they are honest)
+    scale = bc.load_result(tmp_path / "cal2" / "result.json").sigma_px_estimated
+    assert 0.4 < scale < 2.5, scale
+    r = run("calibrate", "ex/laser.csv", "--walls", "sim/walls.csv", "--method", "bayes",
+            "--max-steps", 200, "--allow-unconverged", "--out", "post", "--no-progress",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    post = bc.load_posterior(tmp_path / "post" / "posterior.npz")
+    assert np.all(np.isfinite(post.point_samples))

@@ -67,8 +67,19 @@ def test_calibrate_rejects_unsupported_combinations(room):
     with pytest.raises(ValueError, match="scale"):
         bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=None,
                                   sigma_scene=ds.sigma_scene, pixel_cov=cov)
-    with pytest.raises(TypeError, match="FloorPlan"):
-        bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=1.0, pixel_cov=cov)
+    with pytest.raises(TypeError, match="estimate_points=True"):
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=1.0,
+                                  sigma_scene=ds.sigma_scene, pixel_cov=cov,
+                                  estimate_points=False)
+
+
+def test_floor_plan_takes_pixel_cov_through_calibrate_simultaneous(room):
+    # sigma^2 I as covariances with the scale 1 is the scalar model: same fit
+    ds, _ = room
+    iso = np.broadcast_to(0.3**2 * np.eye(2), (len(ds.pixels), 2, 2))
+    a = bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.3)
+    b = bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=1.0, pixel_cov=iso)
+    np.testing.assert_allclose(b.params.to_array(), a.params.to_array(), rtol=1e-6, atol=1e-6)
 
 
 def test_calibration_from_an_image_with_pixel_covariances():

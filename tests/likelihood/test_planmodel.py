@@ -6,7 +6,7 @@ from helpers import gross_plan_pixels
 from scipy import stats
 
 import bayescal as bc
-from bayescal.fit.floorplan import plan_map_start
+from bayescal.fit.plan_start import plan_map_start
 from bayescal.likelihood.floorplan import PlanLikelihood
 from bayescal.scene.floorplan import FloorPlan, corner_azimuths, wrap_angle
 
