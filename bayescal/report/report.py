@@ -121,8 +121,9 @@ def _model_section(doc, info):
     if not rec:
         return
     cmp = rec.get("comparison")
-    if rec.get("requested") == "auto" and cmp:
+    if (rec.get("requested") == "auto" and cmp) or rec.get("note"):
         doc.heading("Laser model")
+    if rec.get("requested") == "auto" and cmp:
         doc.paragraph(f"`--model auto` fitted both laser models by least squares and chose "
                       f"**{rec.get('fitted')}**, the larger Laplace log evidence"
                       + ("" if cmp.get("decisive") else " (not decisive: within 3 nats)") + ".")
