@@ -230,3 +230,12 @@ def test_auto_leaves_out_a_fit_that_does_not_converge():
     assert choice.model == "misaligned" and choice.comparison is None
     assert "the least squares of the aligned model did not converge" in choice.note
     assert choice.record()["comparison"] is None and choice.note in choice.text()
+
+
+def test_auto_falls_back_to_aligned_with_the_sequential_method(rooms, capsys, monkeypatch):
+    rc, cap = _run(rooms, capsys, monkeypatch, "aligned", "--method", "sequential",
+                   "--calibration", "aligned/calibration.npz", "--model", "auto", "--out", "seq")
+    assert rc == 0, cap.err
+    assert "--model auto: the misaligned model is not supported with --method sequential" \
+        in cap.out
+    assert list(_params_csv(rooms / "seq" / "params.csv")) == list(bc.PARAM_NAMES)
