@@ -233,3 +233,20 @@ def test_extraction_smoke(tmp_path):
     for r in res["rows"]:
         assert 0 < r["robust_sd"] < 0.5 and 0 < r["given_sd"] < 0.5
     assert (tmp_path / "extraction.png").stat().st_size > 10_000
+
+
+def test_misalignment_smoke(tmp_path):
+    res = _run("misalignment", tmp_path, "--workers", "1")
+    s = res["summary"]
+    assert list(s) == ["aligned", "tilt 1 deg"] and res["replications"] == 1
+    for m in ("aligned", "misaligned"):
+        assert set(s["aligned"][f"{m}_z_rms"]) == set(s["aligned"]["misaligned_z_rms"])
+        assert np.isfinite(s["tilt 1 deg"][f"{m}_heldout_mm"])
+    # the aligned model has no pose to score; a 1 degree tilt moves its principal point
+    assert s["aligned"]["aligned_z_rms"]["tilt_x"] is None
+    z = {m: max(s["tilt 1 deg"][f"{m}_z_rms"][p] for p in ("u0", "v0"))
+         for m in ("aligned", "misaligned")}
+    assert z["aligned"] > 5 > z["misaligned"], z
+    assert s["tilt 1 deg"]["prefers_misaligned"] == 1 and s["aligned"]["prefers_misaligned"] == 0
+    assert (tmp_path / "misalignment.png").stat().st_size > 10_000
+    assert "| tilt 1 deg | misaligned |" in (tmp_path / "misalignment.md").read_text()

@@ -29,6 +29,7 @@ from ..checks.datafile import (
 from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
+from .lasermodel import model_setting, nominal_and_prior
 from .pixelcov import pixel_cov_setting
 
 __all__ = ["SimulateJob", "ExtractJob",
@@ -49,38 +50,10 @@ def _resolved(path):
     return None if path is None else str(pathlib.Path(path).resolve())
 
 
-
-def _nominal_and_prior(nominal_path, prior_specs):
-    from ..io.data import read_json
-    from ..likelihood.priors import default_prior
-    from ..sensor.parameters import PARAM_NAMES, SensorParams
-
-    nominal = SensorParams.paper()
-    if nominal_path is not None:
-        raw = read_json(nominal_path)
-        raw = raw.get("params", raw) if isinstance(raw, dict) else raw
-        if not isinstance(raw, dict):
-            raise UsageError(f"--nominal {nominal_path}: expected a JSON object of the 8 "
-                             "parameters")
-        missing = [n for n in PARAM_NAMES if n not in raw]
-        if missing:
-            raise UsageError(f"--nominal {nominal_path}: missing parameter(s) "
-                             f"{', '.join(missing)}; expected all of {', '.join(PARAM_NAMES)}")
-        try:
-            nominal = SensorParams(**{n: raw[n] for n in PARAM_NAMES})
-        except (TypeError, ValueError) as exc:
-            raise UsageError(f"--nominal {nominal_path}: {exc}") from None
-    overrides = dict(prior_specs or [])
-    if nominal_path is None and not overrides:
-        return nominal, None
-    prior = default_prior(nominal)
-    prior.update(overrides)
-    return nominal, prior
-
-
 @dataclass(frozen=True)
 class SimulateJob:
-    """Simulate a room; ``options`` as in :data:`bayescal.cli.options.SIMULATE_OPTIONS`."""
+    """Simulate a room; ``options`` as in :data:`bayescal.cli.options.SIMULATE_OPTIONS`
+    (``tilt`` in degrees, ``offset`` in mm: the laser cone's pose)."""
 
     range_mm: float
     n_points: int
@@ -93,11 +66,16 @@ class SimulateJob:
     out: pathlib.Path
     force: bool = False
     images: bool = False
+    tilt: tuple = (0.0, 0.0)
+    offset: tuple = (0.0, 0.0)
 
     @classmethod
     def build(cls, **options):
         """Validated job from option values (defaults for the rest)."""
         o = _opts(op.SIMULATE_OPTIONS, options)
+        if o["images"] and (any(o["tilt"]) or any(o["offset"])):
+            raise UsageError("--images with --tilt/--offset: the image renderer draws the "
+                             "aligned laser cone only; expected --images without them")
         check_out(o["out"], force=o["force"])
         o["out"] = pathlib.Path(o["out"])
         return cls(**{k: o[k] for k in cls.__dataclass_fields__})
@@ -110,7 +88,8 @@ class SimulateJob:
             return simulate_room(range_mm=self.range_mm, n_points=self.n_points,
                                  n_walls=self.n_walls, sigma_px=self.sigma_px,
                                  approx_error=self.approx_error, sigma_3d=self.sigma_3d,
-                                 approx_model=self.approx_model, rng=self.seed)
+                                 approx_model=self.approx_model, rng=self.seed,
+                                 tilt=tuple(np.radians(self.tilt)), offset=tuple(self.offset))
         except (TypeError, ValueError) as exc:
             raise UsageError(str(exc)) from None
 
@@ -184,6 +163,9 @@ class CalibrateJob:
     figures : tuple of (str, pathlib.Path)
         More figures for the report (caption, PNG in the output folder), e.g. the demo's
         laser extraction overlay.
+    model : {"aligned", "misaligned", "auto"}
+        The laser model (``--model``; ``auto`` where only aligned is supported
+        became ``aligned``, and ``model_note`` says so).
     """
 
     method: str
@@ -210,6 +192,8 @@ class CalibrateJob:
     outliers: bool = True
     duplicate_lines: tuple = ()
     figures: tuple = ()
+    model: str = "aligned"
+    model_note: str | None = None
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -218,8 +202,9 @@ class CalibrateJob:
         method = o["method"]
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
-        nominal, prior = _nominal_and_prior(o["nominal"], o["prior"])
+        nominal, prior = nominal_and_prior(o["nominal"], o["prior"])
         data, calib, plan = cls._read(o, nominal)
+        model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
                         else (None, "not used"))
@@ -240,7 +225,8 @@ class CalibrateJob:
                    allow_unconverged=o["allow_unconverged"], out=pathlib.Path(o["out"]),
                    force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
                    title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
-                   plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups))
+                   plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups),
+                   model=model, model_note=note)
 
     @staticmethod
     def _read(o, nominal):

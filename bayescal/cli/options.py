@@ -23,10 +23,12 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "nonneg_float", "image_size", "sigma_px_option", "sigma_scene_option",
            "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
-           "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS",
+           "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS", "LASER_MODELS",
            "finite_float"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
+#: ``--model``: the paper's coaxial cone, a tilted and offset one, or the better of both
+LASER_MODELS = ("aligned", "misaligned", "auto")
 _BAD = argparse.ArgumentTypeError
 
 
@@ -141,18 +143,23 @@ _PRIOR_RE = re.compile(r"^\s*(\w+)\s*=\s*(\w+)\s*\((.*)\)\s*$")
 
 
 def prior_option(text):
-    """``NAME=DIST(ARGS)``: returns ``(name, frozen scipy.stats distribution)``."""
+    """``NAME=DIST(ARGS)``: returns ``(name, frozen scipy.stats distribution)``.
+
+    ``NAME`` is one of the eight parameters or of the laser pose's four
+    (``tilt_x, tilt_y`` in rad, ``offset_x, offset_y`` in mm; ``--model misaligned``).
+    """
     from scipy import stats
 
     from ..sensor.parameters import PARAM_NAMES
+    from ..sensor.pose import POSE_NAMES
 
     m = _PRIOR_RE.match(str(text))
     if not m:
         raise _BAD(f"{text!r}: expected NAME=DIST(ARGS), e.g. 'h=norm(200, 20)'")
     name, dist, argtext = m.groups()
-    if name not in PARAM_NAMES:
+    if name not in PARAM_NAMES + POSE_NAMES:
         raise _BAD(f"{text!r}: unknown parameter {name!r}; expected one of "
-                   + ", ".join(PARAM_NAMES))
+                   + ", ".join(PARAM_NAMES + POSE_NAMES))
     family = getattr(stats, dist, None)
     if not isinstance(family, stats.rv_continuous):
         raise _BAD(f"{text!r}: {dist!r} is not a scipy.stats continuous distribution "
@@ -258,6 +265,12 @@ SIMULATE_OPTIONS = (
                               "protocol)"}),
     Opt(("--sigma-3d",), {"type": nonneg_float, "default": 0.0,
                           "help": "extra 3D measurement noise, mm"}),
+    Opt(("--tilt",), {"type": finite_float, "nargs": 2, "default": (0.0, 0.0),
+                      "metavar": ("TX", "TY"), "help": "tilt of the laser cone about x and "
+                      "y, degrees (a misaligned sensor; docs/conventions.md)"}),
+    Opt(("--offset",), {"type": finite_float, "nargs": 2, "default": (0.0, 0.0),
+                        "metavar": ("OX", "OY"), "help": "offset of the laser cone's apex "
+                        "from the camera axis along x and y, mm"}),
     Opt(("--images",), {"action": "store_true", "help": "also render the room's camera "
                         "images: image.png (16-bit, laser on, lamps and a ghost), "
                         "image_off.png (laser off) and ring.csv (the true centre line)"}),
@@ -285,6 +298,13 @@ CALIBRATE_OPTIONS = (
                              "see outlier_prob in points.csv)"}),
     Opt(("--method",), {"choices": METHODS, "default": "simultaneous",
                         "help": "calibration method"}),
+    Opt(("--model",), {"choices": LASER_MODELS, "default": "aligned",
+                       "help": "laser model: aligned (the paper's cone, coaxial with the "
+                       "camera), misaligned (its tilt and offset fitted too: four more "
+                       "unknowns, priors 0 +- 2 deg and 0 +- 5 mm, --prior tilt_x=... to "
+                       "change them), auto (fit both by least squares and keep the one with "
+                       "the larger Laplace evidence); misaligned and auto need approximate "
+                       "points with --method simultaneous or bayes"}),
     Opt(("--calibration",), {"type": input_file, "help": "sequential: NPZ with "
                              "CalibrationData fields, or grid CSV (plane, u, v, x, y, z)"}),
     Opt(("--calibration-laser",), {"type": input_file, "help": "sequential with a grid CSV: "
@@ -300,7 +320,9 @@ CALIBRATE_OPTIONS = (
                          "centres the default priors (default: the paper's sensor)"}),
     Opt(("--prior",), {"type": prior_option, "action": "append", "metavar": "NAME=DIST(ARGS)",
                        "help": "override one prior with a scipy.stats distribution, e.g. "
-                       "'h=norm(200, 20)'; repeatable"}),
+                       "'h=norm(200, 20)', or with --model misaligned/auto one of the laser "
+                       "pose's (tilt_x, tilt_y in rad, offset_x, offset_y in mm), e.g. "
+                       "'tilt_x=norm(0, 0.01)'; repeatable"}),
     Opt(("--truth",), {"type": input_file, "metavar": "JSON", "help": "truth.json of a "
                        "simulation: adds the truth and the mean 3D error to the report"}),
     Opt(("--max-steps",), {"type": positive_int, "metavar": "N", "help": "bayes: limit on the "

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
+from ..sensor.pose import POSE_NAMES
 from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
@@ -38,8 +39,12 @@ def write_simulation(folder, ds, *, seed):
     )
 
     p = folder.path
+    pose = "" if ds.laser.is_aligned else (
+        f", laser cone tilted ({np.degrees(ds.laser.tilt_x):g}, {np.degrees(ds.laser.tilt_y):g})"
+        f" deg, offset ({ds.laser.offset_x:g}, {ds.laser.offset_y:g}) mm")
     note = (f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
-            f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}), seed {seed}\n"
+            f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}){pose}, "
+            f"seed {seed}\n"
             "u, v: laser pixel (px); x, y, z: approximate point (mm, frame C); sigma_*: its sd "
             "(mm, inf = no information); sigma_px: pixel noise (px)")
     write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
@@ -58,7 +63,8 @@ def write_simulation(folder, ds, *, seed):
     write_json(p / "truth.json", {
         "params": ds.params.as_dict(), "nominal": ds.nominal.as_dict(), "points": ds.points,
         "pixels_true": ds.pixels_true, "walls": ds.walls, "settings": settings, "seed": seed,
-        "n_points": ds.n_points})
+        "n_points": ds.n_points, "laser": dict(zip(POSE_NAMES, ds.laser.to_array().tolist(),
+                                                   strict=True))})
     names = ["laser.csv", "laser.npz", "calibration.npz", "grid.csv", "calib_laser.csv",
              "truth.json"]
     if ds.floor_plan is not None:
@@ -183,7 +189,7 @@ def _bayes(job):
     if job.plan is None:
         post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
                                    sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
-                                   progress=job.progress, **kw)
+                                   progress=job.progress, model=job.model, **kw)
     else:
         try:
             post = bc.sample_posterior(data.pixels, job.plan, sigma_px=job.sigma_px,
@@ -213,7 +219,7 @@ def _least_squares(job):
         # only an explicit --sigma-px describes the pattern pixels
         if job.sigma_px_how == "given":
             kw["sigma_px"] = job.sigma_px
-        return bc.calibrate_sequential(job.calib, **kw)
+        return bc.calibrate_sequential(job.calib, model=job.model, **kw)
     if uses_pixel_cov(job.method, job.data, job.plan):
         kw["pixel_cov"] = job.data.pixel_cov
     if job.plan is not None:
@@ -221,38 +227,48 @@ def _least_squares(job):
                                          prior=job.prior, outliers=job.outliers, **kw)
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
-                                     prior=job.prior, outliers=job.outliers, **kw)
+                                     prior=job.prior, outliers=job.outliers, model=job.model,
+                                     **kw)
 
 
-def calibrate_result(job):
+def calibrate_result(job, choice=None):
     """Run the job's method; returns ``(result, failure message or None)``.
 
     Library messages about the input (duplicate rows, a collapsing noise level)
     are shown with the file's line numbers; a collapsing noise level is bad
-    input (:class:`~bayescal.errors.UsageError`, exit code 2).
+    input (:class:`~bayescal.errors.UsageError`, exit code 2). ``choice`` (a
+    :class:`~bayescal.cli.lasermodel.ModelChoice`, filled in here) records the
+    laser model fitted: with ``--model auto`` both models are fitted by least
+    squares first and the preferred one is used.
     """
     from ..checks.datafile import library_messages
+    from .lasermodel import ModelChoice
 
     data = job.data
+    choice = ModelChoice(job.model) if choice is None else choice
     try:
         with library_messages(data, reported=job.duplicate_lines) if data is not None \
                 else _nothing():
-            return _calibrate(job)
+            return _calibrate(job, choice)
     except DegenerateInputError as exc:         # input that cannot calibrate: exit 2
         where = f"{data.pixel_table.path}: " if data is not None else ""
         raise UsageError(f"{where}{exc}") from None
 
 
-def _calibrate(job):
+def _calibrate(job, choice):
     """:func:`calibrate_result` inside the library-message context."""
+    from dataclasses import replace
+
     from ..checks.fit import NoiseCollapseError
     from ..results.calibration import ConvergenceError
 
     data = job.data
+    job = replace(job, model=choice.resolve(job, _least_squares).model)
     if job.method == "bayes":
         return _bayes(job)
     try:
-        result = _least_squares(job)
+        result = choice.fits.get(job.model)
+        result = _least_squares(job) if result is None else result
     except ConvergenceError as exc:
         if exc.result is None:
             raise Failure(f"{job.method} calibration did not converge: {exc}") from None
@@ -315,12 +331,16 @@ def _prior_of(job):
 
 
 def run_calibrate(job, folder):
-    """Calibrate, then write the result, ``run.json``, ``points.csv`` and the report."""
+    """Calibrate, then write the result, ``run.json``, ``points.csv``, ``params.csv`` and the
+    report; with ``--model auto`` the run record, the summary and the report name the model
+    chosen and give the log-evidence table."""
     from ..io.data import write_json
     from ..report.report import write_report
+    from .lasermodel import ModelChoice
 
     out = folder.path
-    result, failed = calibrate_result(job)
+    choice = ModelChoice(job.model, note=job.model_note)
+    result, failed = calibrate_result(job, choice)
     if hasattr(result, "param_samples"):
         folder.add(result.save(out / POSTERIOR_FILE, overwrite=True))
     else:
@@ -329,22 +349,34 @@ def run_calibrate(job, folder):
     if recon is not None:
         folder.add(points_csv(out / "points.csv", *recon,
                               outlier_prob=getattr(result, "outlier_prob", None)))
-    acc = None
+    folder.add(_params_csv(out, job, result))
+    acc, model = None, {"laser_model": choice.record()}
     if job.data is not None and (recon is not None or result.points is not None):
-        info = run_record(job)
+        info = run_record(job, **model)
         files, acc = write_report(out, result, info, data=job.data, recon=recon,
                                   truth=job.truth, prior=_prior_of(job), title=job.title,
                                   figures=job.figures)
         folder.add(*files.values())
-    folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc)))
+    folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc, **model)))
     from ..checks.datafile import located_summary
 
     print(located_summary(result, job.data))
+    if choice.text():
+        print(choice.text())
     if acc:
         print(f"mean 3D error against the truth: {acc['mean_error_mm']:.1f} mm")
     print(f"wrote {job.out}/" + (POSTERIOR_FILE if job.method == "bayes" else RESULT_FILE)
           + (f", {job.out}/report.html" if (out / "report.html").exists() else ""))
     return failed, acc
+
+
+def _params_csv(out, job, result):
+    """``params.csv``: the eight parameters and, misaligned, the laser pose."""
+    from ..io.paramtable import pose_rows, write_params_csv
+    from ..report.report import parameter_rows
+
+    return write_params_csv(out / "params.csv", parameter_rows(result, prior=_prior_of(job)),
+                            pose_rows(result), model=getattr(result, "model", "aligned"))
 
 
 def run_reconstruct(job, folder):

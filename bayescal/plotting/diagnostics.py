@@ -12,35 +12,61 @@ import numpy as np
 
 from ..constants import CHI2_2_95
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
+from ..sensor.pose import POSE_NAMES
 
 __all__ = ["plot_corner", "plot_pixel_residuals", "plot_reconstruction_ellipses",
            "radial_tangential_sd", "UNITS"]
 
 #: unit of each parameter ("" for dimensionless)
 UNITS = {"xi": "", "phi": "", "alpha_u": "px", "alpha_v": "px", "u0": "px", "v0": "px",
-         "h": "mm", "beta": "rad", "gamma_u": "px", "gamma_v": "px"}
+         "h": "mm", "beta": "rad", "gamma_u": "px", "gamma_v": "px", "tilt_x": "deg",
+         "tilt_y": "deg", "offset_x": "mm", "offset_y": "mm"}
+#: the laser pose as plotted: tilts from rad to degrees, offsets in mm
+POSE_SCALE = np.array([180.0 / np.pi, 180.0 / np.pi, 1.0, 1.0])
 
 
 def _label(name):
     return f"{name} ({UNITS[name]})" if UNITS.get(name) else name
 
 
+def _corner_data(posterior, identifiable, truth, laser_truth):
+    """Names, samples (S, D) and truths (D,) or None of a corner plot; tilts in degrees."""
+    pose = identifiable and getattr(posterior, "model", "aligned") == "misaligned"
+    names = list(IDENTIFIABLE_NAMES if identifiable else PARAM_NAMES)
+    x = posterior.theta_samples if identifiable else posterior.param_samples
+    truths = None
+    if truth is not None:
+        truths = list(truth.to_identifiable() if identifiable else truth.to_array())
+    if pose:
+        names += list(POSE_NAMES)
+        x = np.concatenate([x, posterior.laser_samples * POSE_SCALE], axis=1)
+        if truths is not None or laser_truth is not None:
+            truths = truths or [None] * len(IDENTIFIABLE_NAMES)
+            truths += ([None] * 4 if laser_truth is None
+                       else list(laser_truth.to_array() * POSE_SCALE))
+    return names, x, truths
+
+
 def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior=True,
-                **corner_kw):
+                laser_truth=None, **corner_kw):
     """Corner plot of the posterior with units, the prior and labelled quantiles.
 
     Parameters
     ----------
     posterior : Posterior
     identifiable : bool, optional
-        Plot the 7 identifiable coordinates instead of the 8 paper parameters.
+        Plot the 7 identifiable coordinates instead of the 8 paper parameters; a
+        posterior of the misaligned laser model adds the laser pose's four
+        (``tilt_x``, ``tilt_y`` in degrees, ``offset_x``, ``offset_y`` in mm).
     truth : SensorParams, optional
         Drawn in red (e.g. the simulation's true parameters).
     params : sequence of str, optional
         Subset of names to plot (default all).
     prior : bool, optional
         Overlay each parameter's prior density on its histogram (paper
-        parameters only).
+        parameters and the laser pose).
+    laser_truth : LaserPose, optional
+        The true laser pose, drawn in red with the pose coordinates.
     **corner_kw
         Passed to :func:`corner.corner`.
 
@@ -50,11 +76,7 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
     """
     import corner
 
-    names = list(IDENTIFIABLE_NAMES if identifiable else PARAM_NAMES)
-    x = posterior.theta_samples if identifiable else posterior.param_samples
-    truths = None
-    if truth is not None:
-        truths = truth.to_identifiable() if identifiable else truth.to_array()
+    names, x, truths = _corner_data(posterior, identifiable, truth, laser_truth)
     idx = list(range(len(names)))
     if params is not None:
         unknown = [p for p in params if p not in names]
@@ -62,7 +84,7 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
             raise ValueError(f"params {unknown} not among {names}")
         idx = [names.index(p) for p in params]
     names, x = [names[i] for i in idx], x[:, idx]
-    truths = None if truths is None else np.asarray(truths)[idx]
+    truths = None if truths is None else [truths[i] for i in idx]
     kw = {"labels": [_label(n) for n in names], "show_titles": True, "title_fmt": ".4g",
           "quantiles": [0.05, 0.5, 0.95], "truths": truths, "truth_color": "tab:red",
           "hist_kwargs": {"density": True}, "max_n_ticks": 3, "labelpad": 0.1}
@@ -74,18 +96,29 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
             fmt = axis.get_major_formatter()
             if hasattr(fmt, "set_useOffset"):
                 fmt.set_useOffset(False)
-    if prior and not identifiable:
-        dists = posterior.prior.dists
-        for k, n in enumerate(names):
-            ax = axes[k, k]
-            lo, hi = ax.get_xlim()
-            g = np.linspace(lo, hi, 200)
-            ax.plot(g, dists[n].pdf(g), color="0.5", lw=1, ls=":")
+    if prior:
+        _prior_curves(axes, names, posterior.prior, identifiable)
     note = ("dashed: 5 %, 50 %, 95 % quantiles; dotted grey: prior density"
-            + ("; red: truth" if truth is not None else "")
+            + ("; red: truth" if truth is not None or laser_truth is not None else "")
             + "; titles: median and 90 % interval")
     fig.text(0.98, 0.98, note, ha="right", va="top", fontsize="small")
     return fig
+
+
+def _prior_curves(axes, names, prior, identifiable):
+    """Each plotted parameter's prior density (paper parameters; the pose in its units)."""
+    pose = getattr(prior, "pose_dists", {}) or {}
+    for k, n in enumerate(names):
+        if n in POSE_NAMES and n in pose:
+            dist, scale = pose[n], POSE_SCALE[POSE_NAMES.index(n)]
+        elif not identifiable and n in prior.dists:
+            dist, scale = prior.dists[n], 1.0
+        else:
+            continue
+        ax = axes[k, k]
+        lo, hi = ax.get_xlim()
+        g = np.linspace(lo, hi, 200)
+        ax.plot(g, dist.pdf(g / scale) / scale, color="0.5", lw=1, ls=":")
 
 
 def plot_pixel_residuals(pixels, z, *, raw=None, title=""):

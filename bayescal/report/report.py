@@ -10,8 +10,10 @@ self-contained ``report.html``.
 
 Contents: the parameter table (estimate or mean, sd, 90 % interval, the
 "prior-dominated" flag: the data do not determine the parameter, its prior
-does), warnings (noise estimate far from the noise used, unconverged runs,
-a failed predictive check), the accuracy against the truth, the model check
+does), with the misaligned laser model the laser pose (tilt in degrees, offset in
+mm) and, after ``--model auto``, the log-evidence table of both models, warnings
+(noise estimate far from the noise used, unconverged runs, a failed predictive
+check), the accuracy against the truth, the model check
 and the input lines flagged as outliers (:mod:`bayescal.checks.model`),
 diagnostics, and the figures (the plan view for a floor-plan run).
 """
@@ -22,6 +24,7 @@ import pathlib
 
 import numpy as np
 
+from ..io.paramtable import pose_rows
 from ..results.calibration import linear_reconstruction
 from ..results.posterior import PRIOR_DOMINATED_RATIO
 from ..sensor.parameters import IDENTIFIABLE_NAMES, SensorParams
@@ -77,6 +80,59 @@ def _table(rows, truth):
             cells.append(_num(truth["params"][r["name"]]))
         body.append(cells)
     return head, body, [bool(r.get("prior_dominated")) for r in rows]
+
+
+def _true_pose(truth):
+    """The simulation's laser pose (tilt_x, tilt_y rad, offset_x, offset_y mm), or None."""
+    from ..sensor.pose import POSE_NAMES, LaserPose
+
+    laser = None if truth is None else truth.get("laser")
+    if not isinstance(laser, dict) or any(n not in laser for n in POSE_NAMES):
+        return None
+    return LaserPose(*(float(laser[n]) for n in POSE_NAMES))
+
+
+def _pose_section(doc, result, truth):
+    """The laser pose of a misaligned fit: tilt in degrees, offset in mm, 90 % intervals."""
+    rows = pose_rows(result)
+    if not rows:
+        return
+    true = _true_pose(truth)
+    doc.heading("Laser pose")
+    head = ["pose", "estimate/mean", "sd", "5 %", "95 %"] + (["truth"] if true else [])
+    body = []
+    for k, r in enumerate(rows):
+        f = np.degrees(1.0) if r["unit"] == "rad" else 1.0
+        unit = "deg" if r["unit"] == "rad" else r["unit"]
+        cells = [f"{r['name']} ({unit})"] + [_num(f * r[c], ".4g")
+                                             for c in ("mean", "sd", "q05", "q95")]
+        if true:
+            cells.append(_num(f * true.to_array()[k], ".4g"))
+        body.append(cells)
+    doc.table(head, body)
+    doc.paragraph("The laser cone's tilt about x and y and the offset of its apex from the "
+                  "camera axis (docs/conventions.md); the misaligned model fits them with "
+                  "the sensor parameters (rad and mm in params.csv and the result file).")
+
+
+def _model_section(doc, info):
+    """Which laser model was fitted and, after --model auto, the log-evidence table."""
+    rec = info.get("laser_model")
+    if not rec:
+        return
+    cmp = rec.get("comparison")
+    if (rec.get("requested") == "auto" and cmp) or rec.get("note"):
+        doc.heading("Laser model")
+    if rec.get("requested") == "auto" and cmp:
+        doc.paragraph(f"`--model auto` fitted both laser models by least squares and chose "
+                      f"**{rec.get('fitted')}**, the larger Laplace log evidence"
+                      + ("" if cmp.get("decisive") else " (not decisive: within 3 nats)") + ".")
+        doc.table(["model", "method", "log evidence (nats)", "delta", "weight"],
+                  [[("**" + r["model"] + "**") if r["model"] == cmp["preferred"] else r["model"],
+                    r["method"], _num(r["log_evidence"], ".2f"), _num(r["delta"], ".2f"),
+                    _num(r["weight"], ".3f")] for r in cmp["rows"]])
+    if rec.get("note"):
+        doc.paragraph(rec["note"] + ".")
 
 
 def _sigma_used(result, info):
@@ -167,8 +223,12 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
                                          walls=walls), out / "reconstruction.png"))
     if _is_posterior(result):
         tpar = None if truth is None else SensorParams(**truth["params"])
-        figs["corner"] = ("Posterior of the eight parameters (corner plot)",
-                          savefig(plot_corner(result, truth=tpar), out / "corner.png"))
+        pose = getattr(result, "model", "aligned") == "misaligned"
+        what = ("the seven identifiable parameters and the laser pose" if pose
+                else "the eight parameters")
+        figs["corner"] = (f"Posterior of {what} (corner plot)", savefig(
+            plot_corner(result, truth=tpar, identifiable=pose, laser_truth=_true_pose(truth)),
+            out / "corner.png"))
     figs.update(_check_figures(out, result, info, recon=recon, truth=truth, check=check))
     return figs
 
@@ -188,7 +248,7 @@ def _warnings(result, info, data):
 def _intro(doc, result, info):
     status = "converged" if result.converged else "**NOT CONVERGED**"
     doc.paragraph(f"Method: **{info.get('method', getattr(result, 'method', 'bayes'))}**; "
-                  f"status: {status}.")
+                  f"laser model: **{getattr(result, 'model', 'aligned')}**; status: {status}.")
     if not _is_posterior(result) and result.message:
         doc.paragraph(f"Solver message: {result.message}.")
     ins = [v for v in (info.get("inputs") or {}).values() if v]
@@ -245,6 +305,8 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title, che
     head, body, flags = _table(rows, truth)
     doc.table(head, body, flags=flags)
     doc.paragraph(_note())
+    _pose_section(doc, result, truth)
+    _model_section(doc, info)
     if acc:
         doc.heading("Accuracy against the simulation truth")
         doc.paragraph(f"Mean 3D error {acc['mean_error_mm']:.1f} mm, median "

@@ -550,7 +550,7 @@ def test_write_report_without_optional_parts(tmp_path):
 
 
 def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
-    from bayescal.cli.jobs import _nominal_and_prior
+    from bayescal.cli.lasermodel import nominal_and_prior as _nominal_and_prior
     from bayescal.cli.options import prior_option
     from bayescal.likelihood.priors import default_prior
 

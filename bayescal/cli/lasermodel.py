@@ -1,0 +1,196 @@
+"""The laser model of a calibration: ``--model aligned|misaligned|auto``, and the priors.
+
+Job side (:mod:`bayescal.cli.jobs`): :func:`nominal_and_prior` reads ``--nominal`` and
+``--prior`` (the eight parameters and the laser pose's four), :func:`model_setting`
+checks ``--model`` against the method and the scene: the misaligned model is fitted
+from approximate points with ``--method simultaneous`` or ``bayes``, and by the
+sequential method's stage 2; with a floor plan ``misaligned`` is bad input. ``auto``
+(which compares the Laplace evidence of least-squares fits on approximate points) falls
+back to ``aligned`` with a note on the sequential and floor-plan paths.
+
+Run side (:mod:`bayescal.cli.runs`): :class:`ModelChoice` records what was fitted and,
+for ``auto``, fits both models by least squares and ranks them with
+:func:`bayescal.compare_models` (Laplace evidence; ``docs/model.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..errors import Failure, UsageError
+from ..sensor.pose import POSE_NAMES
+
+__all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS"]
+
+#: the models a fit can have (``auto`` picks one of them)
+FITTED_MODELS = ("aligned", "misaligned")
+
+
+def nominal_and_prior(nominal_path, prior_specs):
+    """The nominal sensor (``--nominal``) and the priors (``--prior``), checked.
+
+    Returns
+    -------
+    nominal : SensorParams
+    prior : dict or None
+        ``{name: frozen distribution}``: the defaults centred on ``nominal`` with the
+        overrides (pose names included); None when neither option was given.
+    """
+    from ..io.data import read_json
+    from ..likelihood.priors import default_prior
+    from ..sensor.parameters import PARAM_NAMES, SensorParams
+
+    nominal = SensorParams.paper()
+    if nominal_path is not None:
+        raw = read_json(nominal_path)
+        raw = raw.get("params", raw) if isinstance(raw, dict) else raw
+        if not isinstance(raw, dict):
+            raise UsageError(f"--nominal {nominal_path}: expected a JSON object of the 8 "
+                             "parameters")
+        missing = [n for n in PARAM_NAMES if n not in raw]
+        if missing:
+            raise UsageError(f"--nominal {nominal_path}: missing parameter(s) "
+                             f"{', '.join(missing)}; expected all of {', '.join(PARAM_NAMES)}")
+        try:
+            nominal = SensorParams(**{n: raw[n] for n in PARAM_NAMES})
+        except (TypeError, ValueError) as exc:
+            raise UsageError(f"--nominal {nominal_path}: {exc}") from None
+    overrides = dict(prior_specs or [])
+    if nominal_path is None and not overrides:
+        return nominal, None
+    prior = default_prior(nominal)
+    prior.update(overrides)
+    return nominal, prior
+
+
+def model_setting(model, *, method, plan, prior_specs):
+    """The laser model a calibration fits, checked against the method and the scene.
+
+    Parameters
+    ----------
+    model : {"aligned", "misaligned", "auto"}
+        ``--model``.
+    method : str
+        ``--method``.
+    plan : FloorPlan or None
+        ``--walls``.
+    prior_specs : list of (str, distribution) or None
+        ``--prior`` values.
+
+    Returns
+    -------
+    model : {"aligned", "misaligned", "auto"}
+        What the run fits (``auto`` on a path that has only the aligned model
+        becomes ``aligned``).
+    note : str or None
+        Why ``auto`` fell back to ``aligned``.
+
+    Raises
+    ------
+    UsageError
+        An unknown model, ``misaligned`` with a floor plan (not supported yet), or a
+        laser-pose prior where the pose is not fitted.
+    """
+    from .options import LASER_MODELS
+
+    if model not in LASER_MODELS:
+        raise UsageError(f"--model {model!r}; expected one of {', '.join(LASER_MODELS)}")
+    note = None
+    if plan is not None and model == "misaligned":
+        raise UsageError("--model misaligned is not supported with --walls (a floor plan) yet; "
+                         "expected --model aligned here (the tilted, offset laser cone is "
+                         "fitted from approximate points, or by --method sequential)")
+    if plan is not None and model == "auto":
+        model, note = "aligned", ("--model auto: the misaligned model is not supported with "
+                                  "--walls (a floor plan) yet; fitted the aligned model")
+    if method == "sequential" and model == "auto":
+        model, note = "aligned", ("--model auto compares least-squares fits on approximate "
+                                  "points by their evidence, which the sequential method has "
+                                  "not; fitted the aligned model (ask for --model misaligned)")
+    pose = [name for name, _ in prior_specs or [] if name in POSE_NAMES]
+    if pose and model == "aligned":
+        raise UsageError(f"--prior {pose[0]}=...: a prior of the laser pose is used only when "
+                         "the pose is fitted; expected --model misaligned or auto (with "
+                         "approximate points, --method simultaneous or bayes)")
+    return model, note
+
+
+@dataclasses.dataclass
+class ModelChoice:
+    """What a calibration run fitted: the model asked for, the one used and why.
+
+    Attributes
+    ----------
+    requested : {"aligned", "misaligned", "auto"}
+        The job's model (after the fallback of :func:`model_setting`).
+    model : {"aligned", "misaligned"} or None
+        The model fitted (None until :meth:`resolve` ran).
+    note : str or None
+        Why ``auto`` fell back, or why one of its fits was left out.
+    comparison : ModelComparison or None
+        ``auto``: :func:`bayescal.compare_models` of the two least-squares fits.
+    fits : dict
+        ``auto``: ``{model: CalibrationResult}`` of the converged fits.
+    """
+
+    requested: str
+    model: str | None = None
+    note: str | None = None
+    comparison: object = None
+    fits: dict = dataclasses.field(default_factory=dict)
+
+    def resolve(self, job, least_squares):
+        """Fix :attr:`model`; for ``auto`` fit both models and compare them.
+
+        Parameters
+        ----------
+        job : CalibrateJob
+        least_squares : callable
+            ``least_squares(job) -> CalibrationResult`` (may raise ConvergenceError).
+        """
+        if self.requested != "auto":
+            self.model = self.requested
+            return self
+        import bayescal as bc
+
+        from ..results.calibration import ConvergenceError
+
+        failed = []
+        for m in FITTED_MODELS:
+            try:
+                self.fits[m] = least_squares(dataclasses.replace(job, model=m))
+            except ConvergenceError:
+                failed.append(m)
+            except (ValueError, ArithmeticError) as exc:
+                raise Failure(f"--model auto: the least squares of the {m} model failed on "
+                              f"these data ({exc}); nothing was written") from None
+        if len(self.fits) == 2:
+            self.comparison = bc.compare_models([self.fits[m] for m in FITTED_MODELS])
+            self.model = self.comparison.preferred_model
+            return self
+        self.model = next(iter(self.fits), "aligned")
+        self.note = (f"--model auto: the least squares of the {' and '.join(failed)} model "
+                     f"did not converge; no comparison, used the {self.model} model")
+        return self
+
+    def record(self):
+        """Plain data for ``run.json``: ``requested``, ``fitted``, ``note``, ``comparison``."""
+        rec = {"requested": self.requested, "fitted": self.model, "note": self.note,
+               "comparison": None}
+        if self.comparison is not None:
+            c = self.comparison
+            rec["comparison"] = {"rows": [dict(r) for r in c.rows],
+                                 "preferred": c.preferred_model, "decisive": c.decisive,
+                                 "table": str(c)}
+        return rec
+
+    def text(self):
+        """Lines for the run's summary: the choice, the note and the comparison table."""
+        lines = []
+        if self.requested == "auto" and self.comparison is not None:
+            lines.append(f"laser model: auto chose {self.model} (Laplace log evidence of the "
+                         "least-squares fits, nats):")
+            lines.append(str(self.comparison))
+        if self.note:
+            lines.append(self.note)
+        return "\n".join(lines)
