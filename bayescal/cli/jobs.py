@@ -114,6 +114,7 @@ class ExtractJob:
     channel: int
     out: pathlib.Path
     force: bool = False
+    along_sd: float = 5.0
 
     @classmethod
     def build(cls, **options):
@@ -131,7 +132,7 @@ class ExtractJob:
         center = None if o["center"] is None else tuple(float(c) for c in o["center"])
         return cls(image_path=pathlib.Path(o["image"]), image=image, background=bg,
                    center=center, channel=o["channel"], out=pathlib.Path(o["out"]),
-                   force=o["force"])
+                   force=o["force"], along_sd=float(o["along_sd"]))
 
 
 @dataclass(frozen=True)

@@ -376,6 +376,10 @@ EXTRACT_OPTIONS = (
                         "ring)"}),
     Opt(("--channel",), {"type": int, "default": 0, "choices": (0, 1, 2),
                          "help": "colour channel of the laser (0 red, 1 green, 2 blue)"}),
+    Opt(("--along-sd",), {"type": positive_float, "default": 5.0, "metavar": "PX",
+                          "help": "sd given to each point along the ring, px (default 5: a "
+                          "point may slide along the stripe; 1 for a floor-plan "
+                          "calibration, docs/images.md)"}),
     *_out("extract"),
 )
 

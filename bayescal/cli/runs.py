@@ -118,7 +118,8 @@ def run_extract(job, folder):
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
 
-    lp = extract_laser(job.image, background=job.background, center=job.center)
+    lp = extract_laser(job.image, background=job.background, center=job.center,
+                       along_sd=job.along_sd)
     if len(lp) == 0 or np.all(lp.flagged):
         return f"no laser ring found in {job.image_path}"
     p = folder.path

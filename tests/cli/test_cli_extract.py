@@ -35,9 +35,18 @@ def test_extract_writes_csv_and_overlay(images):
     good = a[a[:, 6] == 0, :2]
     d = np.min(np.linalg.norm(good[:, None] - truth.pixels[None], axis=-1), axis=1)
     assert np.mean(d < 1.0) > 0.98
+    # --along-sd sets the sd along the ring: the larger eigenvalue of each covariance
+    r = run("extract", "on.tif", "--background", "off.png", "--along-sd", "1", "--out", "ex1",
+            cwd=root)
+    assert r.returncode == 0, r.stderr
+    b = np.loadtxt(root / "ex1" / "laser.csv", delimiter=",", skiprows=2)   # comment, header
+    cov = np.stack([np.stack([b[:, 2], b[:, 3]], -1), np.stack([b[:, 3], b[:, 4]], -1)], -2)
+    big = np.linalg.eigvalsh(cov)[:, 1]
+    np.testing.assert_allclose(np.sqrt(big[b[:, 6] == 0]), 1.0, rtol=0.05)
 
 
 @pytest.mark.parametrize("args, match", [
+    (("on.tif", "--along-sd", "0"), "--along-sd"),
     (("missing.png",), "no such file"),
     (("on.tif", "--background", "small.png"), "shape"),
     (("on.tif", "--center", "1", "nan"), "finite"),

@@ -36,10 +36,10 @@ def _sensor(rng):
 def _z_scores(seed, *, posterior):
     rng = np.random.default_rng(seed)
     tilt, off, off_prior = _sensor(rng)
-    truth = bc.SensorParams.from_array(bc.Prior().sample(rng=rng))
+    sensor = bc.SensorParams.from_array(bc.Prior().sample(rng=rng))
     out = []
     for offset in (off, off_prior):
-        ds = bc.simulate_room(truth, range_mm=2500, n_points=300, n_walls=6,
+        ds = bc.simulate_room(sensor, range_mm=2500, n_points=300, n_walls=6,
                               sigma_px=0.2, approx_error=0.03, approx_model="fig9", rng=rng,
                               tilt=tilt, offset=offset)
         truth = np.r_[ds.params.to_identifiable(), ds.laser.to_array()]
