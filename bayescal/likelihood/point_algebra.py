@@ -66,7 +66,7 @@ def whiten(white, r, axis=-1):
     return np.moveaxis(out, -1, axis)
 
 
-def cone_height(theta, x, y):
+def cone_height(theta, x, y, *, geometry=False):
     """The laser cone's height above the scene positions ``(x, y)`` and its slopes,
     elementwise (the hot path's form of :func:`~bayescal.sensor.laser.cone_points_geo`).
 
@@ -76,16 +76,24 @@ def cone_height(theta, x, y):
         theta, or theta then the pose ``(tilt_x, tilt_y, offset_x, offset_y)``.
     x, y : ndarray, shape (..., N)
         mm.
+    geometry : bool
+        Also return the height's derivatives in the geometry.
 
     Returns
     -------
     z, dz_dx, dz_dy : ndarray, shape (..., N)
         mm and mm/mm; z NaN where the vertical line misses the lit nappe.
+    dz_dgeo : list of ndarray, shape (..., N)
+        Only with ``geometry=True``: d z / d h, d z / d beta, then (misaligned) d z / d
+        tilt_x, tilt_y, offset_x, offset_y (implicit function theorem on the cone's
+        equation ``f = T^2 q_z^2 - q_x^2 - q_y^2``, ``q`` in the cone's frame).
     """
     h, T = theta[..., 5, None], np.tan(theta[..., 6, None])
     if theta.shape[-1] == 7:
         rho = np.sqrt(x * x + y * y)
-        return rho / T - h, x / (rho * T), y / (rho * T)
+        out = (rho / T - h, x / (rho * T), y / (rho * T))
+        sb = np.sin(theta[..., 6, None])
+        return out + ([-np.ones_like(rho), -rho / (sb * sb)],) if geometry else out
     tx, ty, ox, oy = (theta[..., k, None] for k in range(7, 11))
     cx, sx, cy, sy = np.cos(tx), np.sin(tx), np.cos(ty), np.sin(ty)
     # R = Ry(ty) Rx(tx) = [[cy, sy sx, sy cx], [0, cx, -sx], [-sy, cy sx, cy cx]];
@@ -107,7 +115,17 @@ def cone_height(theta, x, y):
         c0 = cy * g0 + sy * sx * g1 + sy * cx * g2                  # R grad f: in C
         c1 = cx * g1 - sx * g2
         c2 = -sy * g0 + cy * sx * g1 + cy * cx * g2
-        return z, -c0 / c2, -c1 / c2
+        out = (z, -c0 / c2, -c1 / c2)
+        if not geometry:
+            return out
+        wz = h + z                                                  # W = P - apex
+        f_tx = wx * (sy * cx * g1 - sy * sx * g2) - wy * (sx * g1 + cx * g2) \
+            + wz * (cy * cx * g1 - cy * sx * g2)                   # W . (dR/dtx) g
+        f_ty = wx * (-sy * g0 + cy * sx * g1 + cy * cx * g2) \
+            - wz * (cy * g0 + sy * sx * g1 + sy * cx * g2)
+        f_b = 2 * T * (1 + T2) * q2 * q2
+        return out + ([-np.ones_like(z), -f_b / c2, -f_tx / c2, -f_ty / c2, c0 / c2,
+                       c1 / c2],)
 
 
 def point_terms(lik, theta, x, y, sig, w):
@@ -169,7 +187,7 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
     Parameters
     ----------
     lik : LaserLikelihood
-    theta : ndarray, shape (..., 7)
+    theta : ndarray, shape (..., 7) or (..., 11)
     x, y : ndarray, shape (..., N)
         The conditional modes' scene coordinates, mm.
     sig : ndarray, shape (...)
@@ -185,8 +203,9 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
 
     Returns
     -------
-    ndarray, shape (..., 7 + n_noise)
-        theta's part ``-sum_i J_theta_i^T R_i`` written out elementwise, then the
+    ndarray, shape (..., n_geo + n_noise)
+        the geometry's part ``-sum_i J_theta_i^T R_i`` written out elementwise (theta, and
+        the laser pose with the misaligned model: it enters through the height), then the
         inferred noise levels' (see :meth:`LaserLikelihood.grad_log_marginal`),
         then ``logit w``'s with the mixture.
     """
@@ -194,14 +213,9 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
         wt = 1.0
     else:
         wt = (1.0 - outlier_resp) + outlier_resp / lik.outlier_scale**2
-    if theta.shape[-1] > 7:                                 # the misaligned cone's geometry
-        return _grad_terms_general(lik, theta, x, y, sig, w, wt, outlier_resp, logit_w)
-    xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
-    sb = np.sin(beta)
-    T = sb / np.cos(beta)
-    rho = np.sqrt(x * x + y * y)
-    z = rho / T - h
-    r = np.sqrt(rho * rho + z * z)
+    xi, gu, gv, u0, v0 = (theta[..., k, None] for k in range(5))
+    z, _, _, dz = cone_height(theta, x, y, geometry=True)
+    r = np.sqrt(x * x + y * y + z * z)
     D = xi * r - z
     mx, my = x / D, y / D
     inv_s = 1.0 / sig[..., None]
@@ -216,12 +230,10 @@ def grad_terms(lik, theta, x, y, sig, w, *, outlier_resp=None, logit_w=None):
     rzw = wt * (z - lik.approx[:, 2]) * wz * wz           # r_z * d r_z / d z
     ru_w, rv_w = wt * ru, wt * rv
     A = wt * (ru * gu * mx + rv * gv * my) * inv_s / D     # -(d r_px / d D) . r_px
-    dz_db = -rho / (sb * sb)
-    zr = xi * z / r
+    K = A * (xi * z / r - 1.0) - rzw                        # -(d R / d z) . R, per point
     out = [np.sum(A * r, -1), -np.sum(ru_w * mx * inv_s, -1), -np.sum(rv_w * my * inv_s, -1),
-           -np.sum(ru_w * inv_s, -1), -np.sum(rv_w * inv_s, -1),
-           np.sum(A * (1.0 - zr) + rzw, -1),
-           np.sum(A * (zr - 1.0) * dz_db - rzw * dz_db, -1)]
+           -np.sum(ru_w * inv_s, -1), -np.sum(rv_w * inv_s, -1)]
+    out += [np.sum(K * d, -1) for d in dz]                  # h, beta (and the pose) via z
     if lik.n_noise:
         rr_p = ru * ru + rv * rv if white is None else wu * wu + wv * wv
         rr_s = ((x - lik.approx[:, 0]) * w[..., 0]) ** 2 \
@@ -252,16 +264,3 @@ def _with_outlier_term(out, outlier_resp, logit_w):
         w_frac = 1.0 / (1.0 + np.exp(-np.asarray(logit_w, dtype=float)))
         out.append(np.sum(outlier_resp - w_frac[..., None], -1))
     return np.stack(out, -1)
-
-
-def _grad_terms_general(lik, g, x, y, sig, w, wt, outlier_resp, logit_w):
-    """:func:`grad_terms` for any geometry (theta and the laser pose): the geometry's part
-    ``-sum_i wt_i J_g,i^T R_i`` from the likelihood's own residuals and Jacobians."""
-    q = np.stack(np.broadcast_arrays(x, y), -1)
-    R, Jg, _ = lik.residuals(g, q, sig, w, jacobian=True)
-    wt = np.broadcast_to(wt, R.shape[:-1])
-    out = list(np.moveaxis(-np.einsum("...n,...nk,...nkj->...j", wt, R, Jg), -1, 0))
-    if lik.n_noise:
-        out += _noise_terms(lik, lik._point_terms(g, x, y, sig, w),
-                            np.sum(R[..., :2] ** 2, -1), np.sum(R[..., 2:] ** 2, -1), wt)
-    return _with_outlier_term(out, outlier_resp, logit_w)
