@@ -37,7 +37,9 @@ extensions = [
 ]
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 exclude_patterns = ["_build", "tutorials", "**/*.ipynb", "auto_tutorials/*.py",
-                    "auto_tutorials/*.ipynb", "auto_tutorials/*.zip"]
+                    "auto_tutorials/*.ipynb", "auto_tutorials/*.zip",
+                    # study outputs (tables next to their figures), linked, not pages
+                    "img/**/*.md"]
 myst_heading_anchors = 3
 myst_enable_extensions = ["dollarmath"]
 myst_fence_as_directive = ["mermaid"]     # diagrams drawn in the browser
