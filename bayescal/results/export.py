@@ -12,17 +12,21 @@ from __future__ import annotations
 import inspect
 
 from ..sensor.parameters import PARAM_NAMES
+from ..sensor.pose import POSE_NAMES
 
 __all__ = ["to_inference_data", "posterior_dict"]
 
 
 def posterior_dict(posterior):
-    """The posterior group as ``{name: array}``, one chain: ``(1, S)`` per parameter and
-    noise level, ``points`` ``(1, S, N, 3)`` mm."""
+    """The posterior group as ``{name: array}``, one chain: ``(1, S)`` per parameter, noise
+    level and (misaligned model) laser-pose coordinate, ``points`` ``(1, S, N, 3)`` mm."""
     post = {n: posterior.param_samples[None, :, k] for k, n in enumerate(PARAM_NAMES)}
     post["points"] = posterior.point_samples[None]
     for n, v in posterior.noise_values().items():
         post[n] = v[None]
+    if getattr(posterior, "model", "aligned") == "misaligned":
+        for k, n in enumerate(POSE_NAMES):
+            post[n] = posterior.laser_samples[None, :, k]
     return post
 
 
@@ -31,7 +35,8 @@ def to_inference_data(posterior, *, module=None):
     ArviZ >= 1.0 or ``arviz_base``).
 
     Posterior group: the 8 paper parameters (one chain of S draws), the points as
-    ``points`` (draw, point, axis) in mm, and each inferred noise level.
+    ``points`` (draw, point, axis) in mm, each inferred noise level and, with the
+    misaligned model, ``tilt_x, tilt_y`` (rad) and ``offset_x, offset_y`` (mm).
 
     Parameters
     ----------

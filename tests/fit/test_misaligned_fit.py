@@ -133,3 +133,15 @@ def test_sequential_fits_the_tilted_cone():
         "chi2_per_dof"]
     with pytest.raises(ValueError, match="needs fit='cone'"):
         bc.calibrate_sequential(ds, model="misaligned", fit="plane")
+
+
+def test_posterior_dict_carries_the_pose():
+    from bayescal.results.export import posterior_dict
+
+    ds = _room(4, n_points=80)
+    post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=0.2,
+                               sigma_scene=ds.sigma_scene, model="misaligned", rng=1,
+                               min_ess=200, n_samples=100, progress=False)
+    d = posterior_dict(post)
+    for k, name in enumerate(POSE_NAMES):
+        np.testing.assert_array_equal(d[name][0], post.laser_samples[:, k])
