@@ -52,7 +52,8 @@ from .fixed_points import calibrate_fixed_points
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
 
-__all__ = ["calibrate_simultaneous", "solve_map", "MapSolution", "MODELS", "check_model"]
+__all__ = ["calibrate_simultaneous", "solve_map", "MapSolution", "MODELS", "check_model",
+           "point_likelihood"]
 
 #: the laser models: the paper's aligned cone, or a cone tilted and offset (4 more unknowns)
 MODELS = ("aligned", "misaligned")
@@ -195,10 +196,10 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     pixels, approx_points = check_calibration_input(pixels, approx_points,
                                                     sigma_scene=sigma_scene,
                                                     center=(init.u0, init.v0))
-    lik = _likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
-                      sigma_scene=sigma_scene, outliers=outliers and estimate_points,
-                      outlier_scale=outlier_scale, outlier_prior=outlier_prior,
-                      pixel_cov=pixel_cov)
+    lik = point_likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
+                           sigma_scene=sigma_scene, outliers=outliers and estimate_points,
+                           outlier_scale=outlier_scale, outlier_prior=outlier_prior,
+                           pixel_cov=pixel_cov)
     theta0 = to_identifiable(init.to_array())
     if lik.n_geo > 7:                                   # the pose starts at its prior mean
         theta0 = np.concatenate([theta0, [float(prior.pose_dists[n].mean())
@@ -213,8 +214,9 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     return _make_result(lik, prior, fit, absolute_sigma, raise_on_failure)
 
 
-def _likelihood(model, pixels, approx_points, prior, **kw):
-    """The per-point likelihood of ``model`` (the misaligned one reads the pose prior)."""
+def point_likelihood(model, pixels, approx_points, prior, **kw):
+    """The per-point likelihood of ``model`` (the misaligned one reads the pose prior); the
+    keywords are :class:`~bayescal.likelihood.points.LaserLikelihood`'s."""
     if model == "misaligned":
         return MisalignedLikelihood(pixels, approx_points, prior=prior, **kw)
     return LaserLikelihood(pixels, approx_points, **kw)

@@ -33,8 +33,7 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
-from ..fit.simultaneous import check_model
-from ..likelihood.misaligned import MisalignedLikelihood
+from ..fit.simultaneous import check_model, point_likelihood
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
 from ..likelihood.priors import Prior
 from ..results.posterior import Posterior
@@ -168,11 +167,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
-    lik = (MisalignedLikelihood(pixels, approx_points, prior=prior, sigma_px=sigma_px,
-                                sigma_scene=sigma_scene, outliers=outliers, pixel_cov=pixel_cov)
-           if model == "misaligned" else
-           LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                           outliers=outliers, pixel_cov=pixel_cov))
+    lik = point_likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
+                           sigma_scene=sigma_scene, outliers=outliers, pixel_cov=pixel_cov)
     ndim = 7 + len(lik.extra_names)
     check_walkers(n_walkers, ndim)
     map_res = calibrate_simultaneous(lik.pixels, lik.approx, sigma_px=sigma_px,
