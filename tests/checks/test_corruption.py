@@ -19,7 +19,7 @@ from bayescal.validation.corruption import KINDS, PLAN_KINDS, corrupt, run_case
 
 #: the cases the invariant still fails (docs/robustness.md says why); a new failure, or one
 #: of these passing, fails the grid test so that this list and the docs are kept true
-KNOWN_FAILURES = {(2500.0, "plan", "given", "streak"), (5000.0, "plan", "inferred", "wall_off")}
+KNOWN_FAILURES = {(2500.0, "plan", "given", "streak")}
 
 
 def _room(range_mm, model="gaussian"):
