@@ -73,9 +73,6 @@ class SimulateJob:
     def build(cls, **options):
         """Validated job from option values (defaults for the rest)."""
         o = _opts(op.SIMULATE_OPTIONS, options)
-        if o["images"] and (any(o["tilt"]) or any(o["offset"])):
-            raise UsageError("--images with --tilt/--offset: the image renderer draws the "
-                             "aligned laser cone only; expected --images without them")
         check_out(o["out"], force=o["force"])
         o["out"] = pathlib.Path(o["out"])
         return cls(**{k: o[k] for k in cls.__dataclass_fields__})

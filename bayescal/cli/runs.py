@@ -98,7 +98,7 @@ def write_images(folder, ds, *, seed):
     from ..scene.render import render_image
 
     img, truth = render_image(ds.params, ds.walls, n_lamps=2, ghost=0.3, bits=16,
-                              with_background=True, rng=seed)
+                              with_background=True, rng=seed, laser=ds.laser)
     p = folder.path
     iio.imwrite(p / "image.png", img)
     iio.imwrite(p / "image_off.png", truth.background)

@@ -16,7 +16,9 @@ from scipy.ndimage import gaussian_filter
 
 from .._validation import check_positive, resolve_rng
 from ..sensor.camera import backproject, project
+from ..sensor.laser import cone_point
 from ..sensor.parameters import SensorParams, as_param_array
+from ..sensor.pose import LaserPose, as_pose_array, pose_rotation
 from .simulate import _ray_polygon_distance
 
 __all__ = ["RenderTruth", "render_image"]
@@ -78,20 +80,24 @@ def _albedo(s, tz, texture, rng):
     return np.clip(alb, 0.05, 1.0)
 
 
-def _beam(P, params):
-    """Laser irradiance per unit power: Gaussian in the angle off the cone, 1/d^2."""
-    rho = np.hypot(P[:, 0], P[:, 1])
-    dz = P[:, 2] + params.h
-    off = np.arctan2(rho, dz) - params.beta
-    d2 = rho ** 2 + dz ** 2
-    return off, 1e6 / d2
+def _beam(P, params, pose):
+    """Laser irradiance per unit power: Gaussian in the angle off the cone, 1/d^2.
+
+    The angle is taken from the cone's apex ``(offset_x, offset_y, -h)`` against its axis
+    (``docs/conventions.md``); the zero pose is the paper's cone."""
+    d = P - np.array([pose[2], pose[3], -params.h])
+    axis = pose_rotation(pose)[:, 2]
+    along = d @ axis
+    across = np.linalg.norm(d - along[:, None] * axis, axis=1)
+    off = np.arctan2(across, along) - params.beta
+    return off, 1e6 / np.sum(d * d, axis=1)
 
 
-def _ring_truth(params, walls, n):
+def _ring_truth(params, walls, n, pose):
     az = np.linspace(-np.pi, np.pi, n, endpoint=False)
     rho, _ = _ray_polygon_distance(az, walls)
-    z = rho / np.tan(params.beta) - params.h
-    pts = np.stack([rho * np.cos(az), rho * np.sin(az), z], axis=-1)
+    xy = np.stack([rho * np.cos(az), rho * np.sin(az)], axis=-1)
+    pts = cone_point(params, xy, laser=LaserPose.from_array(pose))
     return az, pts, project(params, pts)
 
 
@@ -136,7 +142,8 @@ def _check_render_args(params, walls, shape, bits):
 def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=None,
                  beam_deg=0.12, psf_px=0.8, laser_power=12.0, ambient=0.15, texture=1.0,
                  n_lamps=0, ghost=0.0, ghost_deg=4.0, full_well=20000.0, read_noise=10.0, bits=8,
-                 fov_deg=(-50.0, 65.0), with_background=False, n_truth=3600, rng=None):
+                 fov_deg=(-50.0, 65.0), with_background=False, n_truth=3600, rng=None,
+                 laser=None):
     """Render the camera image of the laser ring in a room.
 
     Parameters
@@ -183,6 +190,9 @@ def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=N
         Number of azimuths of the true centre line.
     rng : numpy.random.Generator, int or None, optional
         Texture, lamps and noise.
+    laser : LaserPose or array_like, shape (4,), optional
+        Tilt and offset of the laser cone (``docs/conventions.md``); default the
+        paper's cone, coaxial with the camera.
 
     Returns
     -------
@@ -203,7 +213,12 @@ def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=N
     for name, val in (("psf_px", psf_px), ("read_noise", read_noise), ("ghost", ghost)):
         check_positive(val, name, allow_zero=True)
     rng = resolve_rng(rng)
-    az, pts, uv_true = _ring_truth(params, walls, int(n_truth))
+    pose = np.zeros(4) if laser is None else as_pose_array(laser, "laser")
+    if pose.shape != (4,):
+        raise ValueError(f"laser must be one pose (4,), got shape {pose.shape}")
+    az, pts, uv_true = _ring_truth(params, walls, int(n_truth), pose)
+    ok = np.all(np.isfinite(uv_true), axis=1)
+    az, pts, uv_true = az[ok], pts[ok], uv_true[ok]
     if ceiling_z is None:
         ceiling_z = float(np.max(pts[:, 2])) + 500.0
     H, W = shape
@@ -214,7 +229,7 @@ def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=N
     seen = np.isfinite(elev) & (elev > fov_deg[0]) & (elev < fov_deg[1])
     P, s, tz = _surface(np.where(seen[:, None], rays, [1.0, 0.0, 0.0]), walls, floor_z, ceiling_z)
     alb = _albedo(s, tz, texture, rng)
-    off, fall = _beam(P, params)
+    off, fall = _beam(P, params, pose)
     # pixel footprint: the beam integrated over a pixel (box of variance 1/12 px^2)
     off_img = off.reshape(H, W)
     gy, gx = np.gradient(off_img)

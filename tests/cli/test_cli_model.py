@@ -177,11 +177,21 @@ def test_bad_model_input_exit_2_nothing_written(rooms, capsys, monkeypatch, args
     assert not (rooms / "bad").exists()
 
 
-def test_simulate_images_with_a_tilt_exit_2(tmp_path, capsys, monkeypatch):
+def test_simulate_images_of_a_tilted_sensor(tmp_path, capsys, monkeypatch):
+    """The rendered images show the tilted cone: the true ring of ring.csv lies on it."""
+    from bayescal.sensor.pose import cone_distance_pose
+
     monkeypatch.chdir(tmp_path)
-    rc, cap = _main(["simulate", "--images", "--tilt", 1, 0, "--out", "s"], capsys)
-    assert rc == 2 and "--images with --tilt/--offset" in cap.err
-    assert list(tmp_path.iterdir()) == []
+    rc, cap = _main(["simulate", "--images", "--tilt", 1, 0.5, "--offset", 5, 0,
+                     "--n-points", 80, "--out", "s"], capsys)
+    assert rc == 0, cap.err
+    ring = np.loadtxt(tmp_path / "s" / "ring.csv", delimiter=",", skiprows=3)
+    truth = json.loads((tmp_path / "s" / "truth.json").read_text())
+    p = truth.get("params", truth)
+    x = [p["h"], p["beta"], np.radians(1.0), np.radians(0.5), 5.0, 0.0]
+    np.testing.assert_allclose(cone_distance_pose(x, ring[:, 2:5]), 0.0, atol=1e-6)
+    aligned = [p["h"], p["beta"], 0.0, 0.0, 0.0, 0.0]
+    assert np.max(np.abs(cone_distance_pose(aligned, ring[:, 2:5]))) > 5.0
 
 
 def test_auto_falls_back_to_aligned_on_a_floor_plan(rooms, capsys, monkeypatch):

@@ -54,3 +54,21 @@ def test_bad_arguments(kw, match):
 def test_bad_room():
     with pytest.raises(ValueError, match="room"):
         bc.render_image(bc.SensorParams.paper(), np.zeros((3, 2)))
+
+
+def test_render_a_tilted_cone():
+    """laser=: the ring is drawn on the tilted, offset cone (its true centre line, and the
+    extracted stripe, on that cone, about 1.6 px off the aligned one here)."""
+    p = bc.SensorParams.paper()
+    pose = bc.LaserPose(np.radians(1.0), np.radians(0.5), 5.0, -5.0, h=p.h)
+    img0, t0 = bc.render_image(p, bc.room_walls(2500), rng=0)
+    img1, t1 = bc.render_image(p, bc.room_walls(2500), rng=0, laser=pose)
+    np.testing.assert_allclose(t1.points, bc.cone_point(p, t1.points[:, :2], laser=pose))
+    lp = bc.extract_laser(img1)
+    good = lp.pixels[~lp.flagged]
+
+    def to(truth):
+        return np.median(np.min(np.linalg.norm(good[:, None] - truth.pixels[None], axis=-1), 1))
+    assert to(t1) < 0.3 < 1.0 < to(t0)
+    img_zero, _ = bc.render_image(p, bc.room_walls(2500), rng=0, laser=np.zeros(4))
+    np.testing.assert_array_equal(img_zero, img0)
