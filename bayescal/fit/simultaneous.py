@@ -384,7 +384,9 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
                 "theta": sol.theta,
                 "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
                 "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik),
-                "log_evidence": _log_evidence(lik, prior, fit)},
+                "log_evidence": _log_evidence(lik, prior, fit),
+                "pose_prior_sd": (np.array([prior.pose_dists[n].std() for n in POSE_NAMES])
+                                  if nt > 7 else None)},
         outlier_prob=fit.r.copy() if lik.outliers else None)
     if result.converged:
         m = lik.min_residual(np.concatenate([sol.theta, fit.extra(lik)]), sol.q)

@@ -50,7 +50,7 @@ from ..stats.identifiability import (
     identifiability_report,
     identifiable_to_paper_jacobian,
 )
-from .reconstruction import LinearReconstruction, propagate
+from .reconstruction import LinearReconstruction, linear_reconstruction
 
 __all__ = [
     "IdentifiabilityReport",
@@ -70,7 +70,7 @@ RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
 _SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "pixels", "approx_points",
-                 "log_evidence", "pixel_cov",
+                 "log_evidence", "pixel_cov", "pose_prior_sd",
                  # floor plan: the walls the report draws
                  "walls", "wall_covariance", "wall_index", "azimuths",
                  # sequential: what its residual plot needs (bayescal.sequential_residuals)
@@ -90,38 +90,6 @@ class ConvergenceError(RuntimeError):
     def __init__(self, message, result=None):
         super().__init__(message)
         self.result = result
-
-
-def linear_reconstruction(params, cov_identifiable, pixels, sigma_px, *, laser=None):
-    """Triangulate pixels and propagate parameter and pixel uncertainty to first order.
-
-    ``cov = J_theta C_theta J_theta^T + sigma_px^2 J_px J_px^T`` with the
-    analytic Jacobians of :func:`~bayescal.sensor.laser.triangulate_theta`.
-
-    Parameters
-    ----------
-    params : SensorParams
-    cov_identifiable : ndarray, shape (7, 7) or (11, 11)
-        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)`` (then of the
-        laser pose, with ``laser``); NaN entries (not estimated) are treated as 0.
-    pixels : ndarray, shape (M, 2)
-        px.
-    sigma_px : float
-        Pixel noise of the new pixels, px (0 for the parameter part only).
-    laser : LaserPose, optional
-        The laser cone's pose (misaligned model); with an (11, 11) covariance.
-
-    Returns
-    -------
-    LinearReconstruction
-        Unpacks as ``mean (M, 3)`` mm and ``covariance (M, 3, 3)`` mm^2.
-    """
-    geo = params.to_identifiable()
-    if np.shape(cov_identifiable) == (11, 11):
-        geo = np.concatenate([geo, (laser or LaserPose()).to_array()])
-    pts, cov = propagate(geo, cov_identifiable, np.asarray(pixels, float),
-                         sigma_px**2 * np.eye(2))
-    return LinearReconstruction(pts, cov)
 
 
 class CalibrationResult:
@@ -352,6 +320,7 @@ class CalibrationResult:
             for n, v, s in zip(names, self.geometry(), sd7, strict=True)))
         lines.append(f"laser model: {self.model}" + ("" if self._laser is None else
                      " (tilt in rad, offset in mm; docs/conventions.md)"))
+        lines += self._pose_lines(sd7[7:])
         lines.append("residual RMS: " + ", ".join(f"{k} = {v:.4g}"
                                                     for k, v in self.residual_rms.items()))
         if self.sigma_px_estimated is not None:
@@ -365,6 +334,21 @@ class CalibrationResult:
                             + (" ..." if flagged.size > 20 else "") if flagged.size else ""))
         lines.append(str(self.identifiability))
         return "\n".join(lines)
+
+    def _pose_lines(self, sd):
+        """What the data determine of the laser pose: its sd against its prior's
+        (``extras["pose_prior_sd"]``); above half the prior's, the prior decides it."""
+        prior_sd = self.extras.get("pose_prior_sd")
+        if self._laser is None or prior_sd is None:
+            return []
+        out = []
+        for name, v, s, p in zip(POSE_NAMES, self._laser.to_array(), sd, prior_sd,
+                                 strict=True):
+            ratio = s / p
+            out.append(f"  {name} = {v:.4g} +- {s:.3g} (prior sd {p:.3g}; "
+                       + ("PRIOR-DOMINATED: the data barely see it)" if ratio > 0.5 else
+                          f"the data narrow it {1 / ratio:.0f}x)"))
+        return out
 
     # -- persistence -------------------------------------------------------------------
     def to_dict(self):

@@ -23,6 +23,7 @@ from scipy import stats
 from ..sensor.laser import triangulate_geo
 
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
+           "linear_reconstruction",
            "reconstruct_posterior",
            "reconstruct_frames",
            "propagate", "SD_TOLERANCE", "MEAN_TOLERANCE"]
@@ -180,6 +181,38 @@ def propagate(theta, cov_theta, pixels, pixel_cov):
     C = np.nan_to_num(np.asarray(cov_theta, float))
     cov = dth @ C @ np.swapaxes(dth, -1, -2) + dpix @ pixel_cov @ np.swapaxes(dpix, -1, -2)
     return pts, cov
+
+
+def linear_reconstruction(params, cov_identifiable, pixels, sigma_px, *, laser=None):
+    """Triangulate pixels and propagate parameter and pixel uncertainty to first order.
+
+    ``cov = J_theta C_theta J_theta^T + sigma_px^2 J_px J_px^T`` with the
+    analytic Jacobians of :func:`~bayescal.sensor.laser.triangulate_theta`.
+
+    Parameters
+    ----------
+    params : SensorParams
+    cov_identifiable : ndarray, shape (7, 7) or (11, 11)
+        Covariance of ``(xi, gamma_u, gamma_v, u0, v0, h, beta)`` (then of the
+        laser pose, with ``laser``); NaN entries (not estimated) are treated as 0.
+    pixels : ndarray, shape (M, 2)
+        px.
+    sigma_px : float
+        Pixel noise of the new pixels, px (0 for the parameter part only).
+    laser : LaserPose, optional
+        The laser cone's pose (misaligned model); with an (11, 11) covariance.
+
+    Returns
+    -------
+    LinearReconstruction
+        Unpacks as ``mean (M, 3)`` mm and ``covariance (M, 3, 3)`` mm^2.
+    """
+    geo = params.to_identifiable()
+    if np.shape(cov_identifiable) == (11, 11):
+        geo = np.concatenate([geo, np.zeros(4) if laser is None else laser.to_array()])
+    pts, cov = propagate(geo, cov_identifiable, np.asarray(pixels, float),
+                         sigma_px**2 * np.eye(2))
+    return LinearReconstruction(pts, cov)
 
 
 def _noisy_triangulation(theta, sigma_px, pixels, pixel_cov, rng):
