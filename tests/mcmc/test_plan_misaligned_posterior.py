@@ -10,7 +10,7 @@ from bayescal.sensor.pose import POSE_NAMES
 TRUE_POSE = np.r_[np.radians([1.0, 0.5]), 5.0, -5.0]
 
 
-def test_misaligned_plan_posterior_samples_the_pose():
+def test_misaligned_plan_posterior_samples_the_pose(tmp_path):
     ds = bc.simulate_room(range_mm=2500, n_points=80, n_walls=6, sigma_px=0.2,
                           approx_error=0.03, approx_model="wall", rng=0,
                           tilt=TRUE_POSE[:2], offset=TRUE_POSE[2:])
@@ -35,3 +35,8 @@ def test_misaligned_plan_posterior_samples_the_pose():
     lit = bc.cone_point(bc.SensorParams.from_array(theta[k]), post.point_samples[k, :, :2],
                         laser=bc.LaserPose.from_array(ls[k]))
     np.testing.assert_allclose(post.point_samples[k], lit, atol=1e-6)
+    back = bc.load_posterior(post.save(tmp_path / "p.npz"))
+    np.testing.assert_array_equal(back.laser_samples, post.laser_samples)
+    assert back.model == "misaligned" and back.wall_samples.shape == (300, 6, 2)
+    rec = post.reconstruct(ds.pixels[:20])
+    assert np.all(np.isfinite(rec.mean))
