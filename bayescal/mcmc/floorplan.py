@@ -4,7 +4,7 @@
 its second argument is a :class:`~bayescal.FloorPlan`:
 
 1. **MAP start**: :func:`bayescal.fit.plan_start.plan_map_start` gives
-   ``psi_map = (theta, d_0, a_0, ..., d_{W-1}, a_{W-1}[, log sigma_px])``, the
+   ``psi_map = (theta[, pose], d_0, a_0, ..., d_{W-1}, a_{W-1}[, log sigma_px])``, the
    Laplace covariance of *all* these globals (sensor and walls jointly, from the
    inverse Schur complement of the least squares) and the point azimuths;
 2. **collapsed sampling**: :func:`bayescal.mcmc.sampling.sample_collapsed` with the
@@ -81,7 +81,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
     Posterior
         ``param_samples`` (S, 8), ``point_samples`` (S, N, 3), ``wall_samples``
         (S, W, 2) of ``(d_k mm, a_k rad)``, ``noise_samples`` (S, 1) of
-        ``log sigma_px`` when inferred (then ``logit w`` with outliers);
+        ``log sigma_px`` when inferred (then ``logit w`` with outliers; the pose's four
+        first with ``model="misaligned"``, ``laser_samples`` (S, 4));
         ``outlier_prob`` (N,) or None; ``approx_points`` is NaN (the plan
         replaces them) and ``plan`` the given plan.
     """
