@@ -3,10 +3,10 @@
 Job side (:mod:`bayescal.cli.jobs`): :func:`nominal_and_prior` reads ``--nominal`` and
 ``--prior`` (the eight parameters and the laser pose's four), :func:`model_setting`
 checks ``--model`` against the method and the scene: the misaligned model is fitted
-from approximate points with ``--method simultaneous`` or ``bayes``, and by the
-sequential method's stage 2; with a floor plan ``misaligned`` is bad input. ``auto``
-(which compares the Laplace evidence of least-squares fits on approximate points) falls
-back to ``aligned`` with a note on the sequential and floor-plan paths.
+from approximate points or a floor plan (``--walls``) with ``--method simultaneous`` or
+``bayes``, and by the sequential method's stage 2. ``auto`` (which compares the Laplace
+evidence of least-squares fits on approximate points) falls back to ``aligned`` with a
+note on the sequential and floor-plan paths.
 
 Run side (:mod:`bayescal.cli.runs`): :class:`ModelChoice` records what was fitted and,
 for ``auto``, fits both models by least squares and ranks them with
@@ -88,21 +88,17 @@ def model_setting(model, *, method, plan, prior_specs):
     Raises
     ------
     UsageError
-        An unknown model, ``misaligned`` with a floor plan (not supported yet), or a
-        laser-pose prior where the pose is not fitted.
+        An unknown model, or a laser-pose prior where the pose is not fitted.
     """
     from .options import LASER_MODELS
 
     if model not in LASER_MODELS:
         raise UsageError(f"--model {model!r}; expected one of {', '.join(LASER_MODELS)}")
     note = None
-    if plan is not None and model == "misaligned":
-        raise UsageError("--model misaligned is not supported with --walls (a floor plan) yet; "
-                         "expected --model aligned here (the tilted, offset laser cone is "
-                         "fitted from approximate points, or by --method sequential)")
     if plan is not None and model == "auto":
-        model, note = "aligned", ("--model auto: the misaligned model is not supported with "
-                                  "--walls (a floor plan) yet; fitted the aligned model")
+        model, note = "aligned", ("--model auto compares the models by the Laplace evidence, "
+                                  "which the floor-plan least squares does not compute; fitted "
+                                  "the aligned model (ask for --model misaligned)")
     if method == "sequential" and model == "auto":
         model, note = "aligned", ("--model auto compares least-squares fits on approximate "
                                   "points by their evidence, which the sequential method has "

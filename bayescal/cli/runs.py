@@ -195,7 +195,7 @@ def _bayes(job):
         try:
             post = bc.sample_posterior(data.pixels, job.plan, sigma_px=job.sigma_px,
                                        prior=job.prior, rng=job.seed, progress=job.progress,
-                                       **kw)
+                                       model=job.model, **kw)
         except TypeError as exc:
             raise Failure("--method bayes with --walls needs a sampler that takes a floor "
                           f"plan; this bayescal's does not ({exc}). Use --method "
@@ -225,7 +225,8 @@ def _least_squares(job):
         kw["pixel_cov"] = job.data.pixel_cov
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
-                                         prior=job.prior, outliers=job.outliers, **kw)
+                                         prior=job.prior, outliers=job.outliers,
+                                         model=job.model, **kw)
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, model=job.model,

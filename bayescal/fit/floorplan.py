@@ -4,7 +4,9 @@ Unknowns: ``g = (theta (7), phi, d_0, a_0, ..., d_{W-1}, a_{W-1})`` and one
 azimuth ``t_i`` per laser point; rows: two whitened pixel residuals per point
 (:class:`~bayescal.likelihood.floorplan.PlanLikelihood`), the eight sensor prior rows
 (:class:`~bayescal.likelihood.priors.Prior`, ``phi`` seen by its prior only, as in the
-per-point method) and ``2W`` wall prior rows from the plan. Levenberg-Marquardt
+per-point method) and ``2W`` wall prior rows from the plan. With the misaligned laser
+model, ``g = (theta, pose (4), phi, walls)`` and four pose prior rows
+(:class:`~bayescal.likelihood.plan_misaligned.MisalignedPlanLikelihood`). Levenberg-Marquardt
 with the scalar azimuths eliminated by a Schur complement: O(N) per iteration.
 
 Each point's wall is re-decided at every iteration from its azimuth and the
@@ -19,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..checks.fit import flag_untrusted
-from ..likelihood.floorplan import PlanLikelihood
 from ..likelihood.outliers import (
     OUTLIER_PRIOR,
     OUTLIER_SCALE,
@@ -27,19 +28,20 @@ from ..likelihood.outliers import (
     em_update,
     trimmed_mean_square,
 )
+from ..likelihood.plan_misaligned import plan_likelihood
 from ..likelihood.priors import Prior
 from ..results.calibration import ConvergenceError
 from ..results.floorplan import CHECK_P, N_RESTARTS, check_solution, make_result
 from ..scene.corners import candidate_walls, shallow_corners
 from ..scene.floorplan import FloorPlan, corner_azimuths, wrap_angle
-from ..sensor.laser import triangulate_theta
+from ..sensor.laser import triangulate_geo
 from ..sensor.parameters import (
     SensorParams,
     from_identifiable,
-    identifiable_jacobian,
     to_identifiable,
 )
-from .schur import damped_step
+from ..sensor.pose import POSE_NAMES
+from .schur import _prior_rows, damped_step
 
 __all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
 
@@ -49,12 +51,13 @@ class PlanMapSolution:
 
     Attributes
     ----------
-    g : ndarray, shape (8 + 2W,)
-        ``(theta, phi, walls flattened)`` at the MAP.
+    g : ndarray, shape (n_geo + 1 + 2W,)
+        ``(theta[, pose], phi, walls flattened)`` at the MAP (``n_geo`` 7, or 11 with the
+        laser pose).
     t : ndarray, shape (N,)
         Point azimuths, rad.
     wall_index : ndarray of int, shape (N,)
-    cov : ndarray, shape (8 + 2W, 8 + 2W)
+    cov : ndarray, shape (n_geo + 1 + 2W,) * 2
         Laplace covariance of ``g`` (inverse Schur complement).
     """
 
@@ -63,9 +66,10 @@ class PlanMapSolution:
 
 
 def _normal_equations(lik, prior, g, t, sig):
-    W, N = lik.n_walls, lik.n
-    G = 8 + 2 * W
-    theta, phi, walls = g[:7], g[7], g[8:].reshape(W, 2)
+    W, N, nt = lik.n_walls, lik.n, lik.n_geo
+    o = nt + 1                              # the walls' offset in g
+    G = o + 2 * W
+    theta, walls = g[:nt], g[o:].reshape(W, 2)
     k = lik.hard_wall_index(walls, t)
     R, Jth, Jw, Jt = lik.residuals(theta, walls, t, k, sig, jacobian=True)
     R0 = R
@@ -75,39 +79,37 @@ def _normal_equations(lik, prior, g, t, sig):
             Jt * s[:, None]
     idx = np.arange(N)
     Jg = np.zeros((N, 2, G))
-    Jg[:, :, :7] = Jth
-    Jg[idx, :, 8 + 2 * k] = Jw[:, :, 0]
-    Jg[idx, :, 9 + 2 * k] = Jw[:, :, 1]
-    a = from_identifiable(theta, phi)
-    rp, D = prior.residuals(a, jacobian=True)
-    Jp = D @ identifiable_jacobian(theta, phi)
-    rw = (g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    Jg[:, :, :nt] = Jth
+    Jg[idx, :, o + 2 * k] = Jw[:, :, 0]
+    Jg[idx, :, o + 1 + 2 * k] = Jw[:, :, 1]
+    rp, Jp = _prior_rows(prior, g[:o])      # sensor (and pose) prior rows in (theta, phi)
+    rw = (g[o:] - lik.plan.param_nominal) / lik.plan.param_sd
     A = np.einsum("nki,nkj->ij", Jg, Jg)
-    A[:8, :8] += Jp.T @ Jp
-    A[8:, 8:] += np.diag(1.0 / lik.plan.param_sd**2)
+    A[:o, :o] += Jp.T @ Jp
+    A[o:, o:] += np.diag(1.0 / lik.plan.param_sd**2)
     B = np.einsum("nki,nk->ni", Jg, Jt)
     C = np.einsum("nk,nk->n", Jt, Jt)
     gg = np.einsum("nki,nk->i", Jg, R)
-    gg[:8] += Jp.T @ rp
-    gg[8:] += rw / lik.plan.param_sd
+    gg[:o] += Jp.T @ rp
+    gg[o:] += rw / lik.plan.param_sd
     gt = np.einsum("nk,nk->n", Jt, R)
     cost = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
     return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, R0=R0, k=k, Jp=Jp)
 
 
 def _cost(lik, prior, g, t, sig):
-    W = lik.n_walls
-    walls = g[8:].reshape(W, 2)
+    W, nt = lik.n_walls, lik.n_geo
+    walls = g[nt + 1:].reshape(W, 2)
     # outside the physical domain (walls behind the axis, h <= 0, beta outside (0, pi/2), xi < 0,
     # xi + phi <= 0): not a step to take
     if (np.any(walls[:, 0] <= 0) or g[5] <= 0 or not 0 < g[6] < np.pi / 2
-            or g[0] < 0 or g[0] + g[7] <= 0):
+            or g[0] < 0 or g[0] + g[nt] <= 0):
         return np.inf
-    R = lik.residuals(g[:7], walls, t, lik.hard_wall_index(walls, t), sig)
+    R = lik.residuals(g[:nt], walls, t, lik.hard_wall_index(walls, t), sig)
     if lik.em_weights is not None:
         R = R * np.sqrt(lik.em_weights)[:, None]
-    rp = prior.residuals(from_identifiable(g[:7], g[7]))
-    rw = (g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    rp = _prior_rows(prior, g[:nt + 1], jacobian=False)
+    rw = (g[nt + 1:] - lik.plan.param_nominal) / lik.plan.param_sd
     c = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
     return c if np.isfinite(c) else np.inf
 
@@ -136,7 +138,7 @@ def _step(ne, lam, free=None):
 def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=None):
     """Levenberg-Marquardt on (g, t) at fixed pixel noise; returns a PlanMapSolution.
 
-    ``free`` (bool, shape (8 + 2W,)) holds the other entries of ``g`` at their start.
+    ``free`` (bool, shape (n_geo + 1 + 2W,)) holds the other entries of ``g`` at their start.
     """
     lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
     cost, ne = _normal_equations(lik, prior, g, t, sig)
@@ -171,7 +173,8 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
 
 
 def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
-         outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
+         outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None,
+         model="aligned"):
     """MAP with the pixel noise given or estimated; returns (lik, prior, sol).
 
     A staged solve from ``init`` (see :func:`_fit_from`); if its solution fails the
@@ -181,7 +184,8 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
     wins; ``sol.check`` says whether it passed (:func:`~bayescal.results.floorplan.make_result`
     flags it unconverged otherwise). ``outliers``: the per-point outlier mixture,
     solved by EM (:func:`_finish`). ``pixel_cov`` (N, 2, 2) px^2: per-point pixel
-    covariances (every pixel residual row whitened, :class:`PlanLikelihood`).
+    covariances (every pixel residual row whitened, :class:`PlanLikelihood`). ``model``
+    ``"misaligned"`` fits the laser cone's pose too (starting at its prior mean).
     """
     if not isinstance(plan, FloorPlan):
         raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
@@ -190,9 +194,9 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
         init = prior.mean()
     elif not isinstance(init, SensorParams):
         raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
-    lik = PlanLikelihood(pixels, plan, sigma_px=sigma_px, azimuth_params=init,
-                         outliers=outliers, outlier_scale=outlier_scale,
-                         outlier_prior=outlier_prior, pixel_cov=pixel_cov)
+    lik = plan_likelihood(model, pixels, plan, prior, sigma_px=sigma_px, azimuth_params=init,
+                          outliers=outliers, outlier_scale=outlier_scale,
+                          outlier_prior=outlier_prior, pixel_cov=pixel_cov)
     if lik.n < 4:
         raise ValueError(f"need at least 4 laser points, got N={lik.n}")
     best = None
@@ -235,10 +239,11 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     lik.ref_sigma_px = 1.0 if lik.infer_px else lik.sigma_px
     lik.em_weights = None                   # a fresh start: its own EM
     theta0 = to_identifiable(init.to_array())
-    g = np.concatenate([theta0, [init.phi], plan.param_nominal])
+    pose0 = [float(lik.prior.pose_dists[n].mean()) for n in POSE_NAMES] if lik.n_geo > 7 else []
+    g = np.concatenate([theta0, pose0, [init.phi], plan.param_nominal])
     t = lik._start(theta0[None])[0]
     sig = 1.0 if lik.infer_px else lik.sigma_px
-    stage1 = np.r_[np.ones(8, bool), np.tile([True, False], lik.n_walls)]
+    stage1 = np.r_[np.ones(lik.n_geo + 1, bool), np.tile([True, False], lik.n_walls)]
     if staged:
         sol = _solve(lik, prior, g, t, sig, max_iter=max_iter, free=stage1)
         g, t = sol.g, sol.t
@@ -305,7 +310,7 @@ def _logit(w):
 
 def _e_step(lik, g, sig):
     """EM E-step at ``g``: sets ``r``, ``w`` and the weights; returns ``max |change of r|``."""
-    psi = np.concatenate([g[:7], g[8:], [np.log(sig)] if lik.infer_px else [],
+    psi = np.concatenate([g[:lik.n_geo], g[lik.n_geo + 1:], [np.log(sig)] if lik.infer_px else [],
                           [_logit(lik.em_w)]])
     r = lik.outlier_prob(psi)
     r = np.where(np.isfinite(r), r, 1.0)         # no inlier fit at all: an outlier
@@ -346,10 +351,10 @@ def _corner_restarts(lik, prior, best, max_iter):
     (and it passes the checks when the best did). Measured on the two wrong-wall
     replications of the coverage study: objective 382 -> 296 (the true configuration).
     """
-    W = lik.n_walls
-    for j in shallow_corners(best.g[8:].reshape(W, 2)):
-        walls = best.g[8:].reshape(W, 2)
-        pts, valid = triangulate_theta(best.g[:7], lik.pixels)
+    W, o = lik.n_walls, lik.n_geo + 1
+    for j in shallow_corners(best.g[o:].reshape(W, 2)):
+        walls = best.g[o:].reshape(W, 2)
+        pts, valid = triangulate_geo(best.g[:o - 1], lik.pixels)
         jj = (j + 1) % W
         sel = np.flatnonzero(np.isin(best.wall_index, (j, jj)) & valid)
         c = corner_azimuths(walls[:, 0], walls[:, 1])[j]
@@ -361,10 +366,9 @@ def _corner_restarts(lik, prior, best, max_iter):
                 continue
             g = best.g.copy()
             for i, (d, a) in ((j, w_j), (jj, w_jj)):
-                g[8 + 2 * i:10 + 2 * i] = d, walls[i, 1] + wrap_angle(a - walls[i, 1])
+                g[o + 2 * i:o + 2 + 2 * i] = d, walls[i, 1] + wrap_angle(a - walls[i, 1])
             _restore(lik, best)
-            lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
-                       g[8:].reshape(W, 2))
+            lik.assign(_sensor(lik, g), g[o:].reshape(W, 2))
             try:                # a short solve at the best's noise: enough to rank the basins
                 sol = _solve(lik, prior, g, best.t, best.sigma_px, max_iter=min(max_iter, 12))
             except ValueError:
@@ -384,6 +388,11 @@ def _corner_restarts(lik, prior, best, max_iter):
     return best
 
 
+def _sensor(lik, g):
+    """The sensor (8 paper parameters) of ``g = (theta[, pose], phi, walls)``."""
+    return SensorParams.from_array(from_identifiable(g[:7], g[lik.n_geo]))
+
+
 def _repick(lik, prior, sol, g, t, sig, max_iter):
     """Re-pick each point's candidate walls around the MAP's corners and re-solve.
 
@@ -392,8 +401,7 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
     """
     for _ in range(3):
         before, corner = lik.wall_pair.copy(), lik.corner.copy()
-        lik.assign(SensorParams.from_array(from_identifiable(g[:7], g[7])),
-                   g[8:].reshape(-1, 2))
+        lik.assign(_sensor(lik, g), g[lik.n_geo + 1:].reshape(-1, 2))
         if lik.infer_px:
             lik.set_reference_noise(sigma_px=sig)
         if np.array_equal(before, lik.wall_pair) and not lik.infer_px:
@@ -412,13 +420,15 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
 
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
                    max_iter=200, raise_on_failure=True, outliers=True,
-                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
+                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None,
+                   model="aligned"):
     """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
 
     Called by :func:`bayescal.calibrate_simultaneous` when its second argument
     is a :class:`~bayescal.FloorPlan`; parameters as there. ``pixel_cov`` (N, 2, 2),
     px^2: per-point pixel covariances, the noise of pixel i ``sigma_px^2 pixel_cov_i``
-    (``sigma_px`` a scale on them; ``None`` infers that scale).
+    (``sigma_px`` a scale on them; ``None`` infers that scale). ``model="misaligned"``
+    fits the laser cone's tilt and offset too (``result.laser``).
 
     Returns
     -------
@@ -427,11 +437,13 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         the estimated ``(d_k, a_k)``, ``wall_covariance`` (2W, 2W) in the order ``d_0, a_0,
         d_1, ...``, ``wall_index`` (N,), ``azimuths`` (N,), ``point_covariance`` (N, 3, 3),
         ``map``, ``noise`` (with ``outlier_frac``, the MAP of ``w``), ``em_rounds``;
-        ``outlier_prob`` (N,) at the MAP (None with ``outliers=False``).
+        ``outlier_prob`` (N,) at the MAP (None with ``outliers=False``). With the
+        misaligned model, ``laser`` (the fitted pose) and ``covariance_identifiable``
+        (11, 11), the pose after theta.
     """
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
-                           outlier_prior=outlier_prior, pixel_cov=pixel_cov)
+                           outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
     result = make_result(lik, sol, absolute_sigma, False)
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,

@@ -19,14 +19,16 @@ __all__ = ["plan_map_start"]
 
 def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
                    max_iter=200, raise_on_failure=True, outliers=True,
-                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
+                   outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None,
+                   model="aligned"):
     """MAP start for the collapsed sampler (internal); parameters as
     :func:`~bayescal.fit.floorplan.calibrate_plan`.
 
     Returns
     -------
-    psi_map : ndarray, shape (7 + 2W [+ 1] [+ 1],)
-        ``(theta, walls flattened[, log sigma_px][, logit w])``.
+    psi_map : ndarray, shape (n_geo + 2W [+ 1] [+ 1],)
+        ``(theta[, pose], walls flattened[, log sigma_px][, logit w])`` (the laser pose's
+        four numbers with ``model="misaligned"``).
     cov_psi : ndarray, same square shape
         Laplace covariance (phi marginalised; ``log sigma_px`` given variance
         ``1 / (2N)``, ``logit w`` variance 1 (about the Beta(1, 19) prior's
@@ -39,13 +41,13 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     """
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
-                           outlier_prior=outlier_prior, pixel_cov=pixel_cov)
+                           outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
     res = make_result(lik, sol, absolute_sigma, raise_on_failure)
     res.extras["likelihood"] = lik
     # typical horizontal range of the laser points: where a finite-range ring radius would
     # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)
     lik.reference_range = float(np.median(np.hypot(res.points[:, 0], res.points[:, 1])))
-    keep = np.r_[0:7, 8:len(sol.g)]
+    keep = np.r_[0:lik.n_geo, lik.n_geo + 1:len(sol.g)]     # phi out
     psi = sol.g[keep]
     cov = sol.cov[np.ix_(keep, keep)]
     extra, var = [], []

@@ -145,7 +145,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         unknowns with priors by name in ``prior`` (default zero +- 2 degrees and
         5 mm, :func:`~bayescal.likelihood.priors.default_pose_prior`;
         ``docs/model.md``, "A misaligned laser cone"). With approximate points
-        and ``estimate_points=True``.
+        and ``estimate_points=True``, or with a FloorPlan.
 
     Returns
     -------
@@ -168,9 +168,9 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     True
     """
     model = check_model(model)
-    if model == "misaligned" and (isinstance(approx_points, FloorPlan) or not estimate_points):
-        raise NotImplementedError("model='misaligned' is supported with approximate points and "
-                                  "estimate_points=True (not yet with a FloorPlan)")
+    if model == "misaligned" and not estimate_points:
+        raise NotImplementedError("model='misaligned' needs the points estimated "
+                                  "(estimate_points=True, or a FloorPlan)")
     if pixel_cov is not None and not estimate_points:
         raise TypeError("pixel_cov needs estimate_points=True")
     if pixel_cov is not None and sigma_px is None and not isinstance(approx_points, FloorPlan):
@@ -185,7 +185,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                               absolute_sigma=absolute_sigma, max_iter=max_iter,
                               raise_on_failure=raise_on_failure, outliers=outliers,
                               outlier_scale=outlier_scale, outlier_prior=outlier_prior,
-                              pixel_cov=pixel_cov)
+                              pixel_cov=pixel_cov, model=model)
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")

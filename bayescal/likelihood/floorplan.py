@@ -38,7 +38,8 @@ the outlier reuses each piece's ``rr*``, ``H / C`` and ``C``, untruncated and we
 the inlier's piece shares (the formula and why: ``docs/robustness.md``, "Floor plans").
 
 The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0,
-..., d_{W-1}, a_{W-1}[, log sigma_px][, logit w])`` and ``q`` of shape ``(..., N, 1)``.
+..., d_{W-1}, a_{W-1}[, log sigma_px][, logit w])`` and ``q`` of shape ``(..., N, 1)``;
+with a misaligned cone, the pose after theta (:mod:`bayescal.likelihood.plan_misaligned`).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from .outliers import (
     combine,
     log_prior_logit_frac,
 )
-from .point_algebra import pixel_whitening, whiten
+from .point_algebra import pixel_whitening, whiten, whiten_pair
 from .points import NOISE_BOUNDS
 
 __all__ = ["PlanLikelihood"]
@@ -111,6 +112,8 @@ class PlanLikelihood:
         The least squares' EM weights ``(1 - r) + r / c^2`` of each point's pixel
         rows (set by :mod:`bayescal.fit.floorplan`; None = unit weights).
     """
+
+    n_geo = 7      #: geometric unknowns at the start of psi (11 with the laser pose)
 
     def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None, outliers=False,
                  outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
@@ -188,11 +191,11 @@ class PlanLikelihood:
                 + (("outlier_frac",) if self.outliers else ()))
 
     def split(self, psi):
-        """``psi (..., 7 + 2W [+1] [+1])`` -> theta (..., 7), walls (..., W, 2), sigma_px (...)."""
+        """``psi (..., n_geo + 2W [+1] [+1])`` -> theta (..., n_geo: 7, or 11 with the pose),
+        walls (..., W, 2), sigma_px (...)."""
         psi = np.asarray(psi, dtype=float)
-        theta = psi[..., :7]
-        k = 7 + 2 * self.n_walls
-        walls = psi[..., 7:k].reshape(psi.shape[:-1] + (self.n_walls, 2))
+        theta, k = psi[..., :self.n_geo], self.n_geo + 2 * self.n_walls
+        walls = psi[..., self.n_geo:k].reshape(psi.shape[:-1] + (self.n_walls, 2))
         sig = np.exp(psi[..., k]) if self.infer_px else np.full(psi.shape[:-1], self.sigma_px)
         return theta, walls, sig
 
@@ -225,8 +228,7 @@ class PlanLikelihood:
         dd, aa = d[..., self.wall_pair], a[..., self.wall_pair]
         return dd, aa, c
 
-    def _side(self, t, c):
-        """0 where azimuth ``t`` is before corner ``c`` (first wall), 1 after."""
+    def _side(self, t, c):          # 0 where azimuth t is before corner c (first wall), 1 after
         return (wrap_angle(t - c) > 0).astype(int)
 
     def points_3d(self, psi, q):
@@ -253,15 +255,15 @@ class PlanLikelihood:
         per point): ``cos(t - a)`` and ``sin(t - a)`` by the angle-addition formulas,
         two transcendental calls per evaluation instead of four.
         """
-        xi, gu, gv, u0, v0, h, beta = (theta[..., k, None] for k in range(7))
+        xi, gu, gv, u0, v0 = (theta[..., k, None] for k in range(5))
         ct, st = np.cos(t), np.sin(t)
         c = ct * ca + st * sa                                  # cos(t - a)
         ic = np.where(c > 0, 1.0 / c, np.nan)                  # NaN: the ray misses the wall
         rho = d * ic
         r_t = rho * (st * ca - ct * sa) * ic                   # rho tan(t - a)
-        it = 1.0 / np.tan(beta)
-        x, y, z = rho * ct, rho * st, rho * it - h
-        dx, dy, dz = r_t * ct - y, r_t * st + x, r_t * it
+        x, y = rho * ct, rho * st
+        dx, dy = r_t * ct - y, r_t * st + x
+        z, dz = self._height(theta, rho, r_t, x, y, dx, dy)
         r = np.sqrt(x * x + y * y + z * z)
         D = xi * r - z
         iD = np.where(D > 0, 1.0 / D, np.nan)
@@ -269,6 +271,11 @@ class PlanLikelihood:
         dD = xi * (x * dx + y * dy + z * dz) / r - dz
         return (gu * mx + u0, gv * my + v0, gu * (dx - mx * dD) * iD,
                 gv * (dy - my * dD) * iD)
+
+    def _height(self, theta, rho, r_t, x, y, dx, dy):
+        """The cone's height ``z`` (..., N) over the wall point and ``dz/dt``: aligned cone."""
+        it = 1.0 / np.tan(theta[..., 6, None])
+        return rho * it - theta[..., 5, None], r_t * it
 
     def _fit_piece(self, theta, t, d, ca, sa, n_iter, h=1e-5, sel=slice(None)):
         """Gauss-Newton on each point's azimuth on one wall (unit noise).
@@ -283,8 +290,8 @@ class PlanLikelihood:
         white = None if self.px_white is None else self.px_white[sel]
         for it in range(n_iter + 1):
             u, v, du, dv = self._pixel_terms(theta, t, d, ca, sa)
-            ru, rv = _whiten_pair(white, u - pu, v - pv)
-            du, dv = _whiten_pair(white, du, dv)
+            ru, rv = whiten_pair(white, u - pu, v - pv)
+            du, dv = whiten_pair(white, du, dv)
             C = du * du + dv * dv
             g = du * ru + dv * rv
             full = g / C
@@ -294,7 +301,7 @@ class PlanLikelihood:
             t = t - step
         # remaining gain of the quadratic model (of the clipped step where clipped)
         rr = ru * ru + rv * rv + np.where(step == full, -g * step, (C * step - 2 * g) * step)
-        du2, dv2 = _whiten_pair(white, *self._pixel_terms(theta, t + h, d, ca, sa)[2:])
+        du2, dv2 = whiten_pair(white, *self._pixel_terms(theta, t + h, d, ca, sa)[2:])
         H = C + (ru * (du2 - du) + rv * (dv2 - dv)) / h
         return rr, t - step, C, np.log(np.where(H > 0, H / C, 1.0))
 
@@ -436,8 +443,8 @@ class PlanLikelihood:
         d, a = np.where(s, dd[..., 1], dd[..., 0]), np.where(s, aa[..., 1], aa[..., 0])
         with np.errstate(invalid="ignore", divide="ignore"):
             u, v, du, dv = self._pixel_terms(theta, t, d, np.cos(a), np.sin(a))
-            ru, rv = _whiten_pair(self.px_white, u - self.pixels[:, 0], v - self.pixels[:, 1])
-            du, dv = _whiten_pair(self.px_white, du, dv)
+            ru, rv = whiten_pair(self.px_white, u - self.pixels[:, 0], v - self.pixels[:, 1])
+            du, dv = whiten_pair(self.px_white, du, dv)
             rr = ru * ru + rv * rv
             lin = -0.5 * rr / sig[..., None] ** 2
             if self.outliers:
@@ -452,7 +459,7 @@ class PlanLikelihood:
 
         Parameters
         ----------
-        theta : ndarray, shape (7,)
+        theta : ndarray, shape (n_geo,)
         walls : ndarray, shape (W, 2)
             ``(d_k, a_k)`` per wall.
         t : ndarray, shape (N,)
@@ -465,7 +472,7 @@ class PlanLikelihood:
         -------
         R : ndarray, shape (N, 2)
             ``(project - pixels) / sigma_px``, whitened per point with ``pixel_cov``.
-        J_theta : ndarray, shape (N, 2, 7)
+        J_theta : ndarray, shape (N, 2, n_geo)
             Only with ``jacobian=True``.
         J_wall : ndarray, shape (N, 2, 2)
             Only with ``jacobian=True``: w.r.t. the point's own wall ``(d, a)``.
@@ -475,13 +482,14 @@ class PlanLikelihood:
         d, a = walls[wall_idx, 0], walls[wall_idx, 1]
         if not jacobian:
             P = plan_point(theta, t, d, a)
-            uv, _ = project_theta(theta, P)
+            uv, _ = project_theta(theta[:7], P)
             return whiten(self.px_white, (uv - self.pixels) / sigma_px)
         P, dPt, dPth, dPw = plan_point(theta, t, d, a, jacobian=True)
-        uv, _, G, Gth = project_theta(theta, P, jacobian=True)
-        wh = self.px_white
+        uv, _, G, Gth = project_theta(theta[:7], P, jacobian=True)
+        wh, Jth = self.px_white, G @ dPth
+        Jth[..., :7] += Gth
         R = whiten(wh, (uv - self.pixels) / sigma_px)
-        Jth = whiten(wh, (Gth + G @ dPth) / sigma_px, axis=-2)
+        Jth = whiten(wh, Jth / sigma_px, axis=-2)
         Jw = whiten(wh, (G @ dPw) / sigma_px, axis=-2)
         Jt = whiten(wh, np.einsum("nij,nj->ni", G, dPt) / sigma_px)
         return R, Jth, Jw, Jt
@@ -490,11 +498,3 @@ class PlanLikelihood:
         """Wall of each point at azimuths ``t`` (N,) under walls (W, 2), shape (N,)."""
         c = corner_azimuths(walls[:, 0], walls[:, 1])[self.corner]
         return np.where(self._side(t, c) == 0, self.wall_pair[:, 0], self.wall_pair[:, 1])
-
-
-def _whiten_pair(white, ru, rv):
-    """Whitened pixel rows as a pair: ``ru, rv`` (..., n) with ``white`` (n, 3) or None."""
-    if white is None:
-        return ru, rv
-    out = whiten(white, np.stack([ru, rv], axis=-1))
-    return out[..., 0], out[..., 1]

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sensor.laser import cone_height
+
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
-           "whiten"]
+           "whiten", "whiten_pair"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -66,66 +68,12 @@ def whiten(white, r, axis=-1):
     return np.moveaxis(out, -1, axis)
 
 
-def cone_height(theta, x, y, *, geometry=False):
-    """The laser cone's height above the scene positions ``(x, y)`` and its slopes,
-    elementwise (the hot path's form of :func:`~bayescal.sensor.laser.cone_points_geo`).
-
-    Parameters
-    ----------
-    theta : ndarray, shape (..., 7) or (..., 11)
-        theta, or theta then the pose ``(tilt_x, tilt_y, offset_x, offset_y)``.
-    x, y : ndarray, shape (..., N)
-        mm.
-    geometry : bool
-        Also return the height's derivatives in the geometry.
-
-    Returns
-    -------
-    z, dz_dx, dz_dy : ndarray, shape (..., N)
-        mm and mm/mm; z NaN where the vertical line misses the lit nappe.
-    dz_dgeo : list of ndarray, shape (..., N)
-        Only with ``geometry=True``: d z / d h, d z / d beta, then (misaligned) d z / d
-        tilt_x, tilt_y, offset_x, offset_y (implicit function theorem on the cone's
-        equation ``f = T^2 q_z^2 - q_x^2 - q_y^2``, ``q`` in the cone's frame).
-    """
-    h, T = theta[..., 5, None], np.tan(theta[..., 6, None])
-    if theta.shape[-1] == 7:
-        rho = np.sqrt(x * x + y * y)
-        out = (rho / T - h, x / (rho * T), y / (rho * T))
-        sb = np.sin(theta[..., 6, None])
-        return out + ([-np.ones_like(rho), -rho / (sb * sb)],) if geometry else out
-    tx, ty, ox, oy = (theta[..., k, None] for k in range(7, 11))
-    cx, sx, cy, sy = np.cos(tx), np.sin(tx), np.cos(ty), np.sin(ty)
-    # R = Ry(ty) Rx(tx) = [[cy, sy sx, sy cx], [0, cx, -sx], [-sy, cy sx, cy cx]];
-    # o = R^T (x - ox, y - oy, h), e = R^T e_z (docs/conventions.md)
-    wx, wy = x - ox, y - oy
-    o0, o1, o2 = cy * wx - sy * h, sy * sx * wx + cx * wy + cy * sx * h, \
-        sy * cx * wx - sx * wy + cy * cx * h
-    e0, e1, e2 = -sy, cy * sx, cy * cx
-    T2 = T * T
-    A2 = T2 * e2 * e2 - e0 * e0 - e1 * e1
-    B = T2 * o2 * e2 - o0 * e0 - o1 * e1
-    C = T2 * o2 * o2 - o0 * o0 - o1 * o1
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sq = np.sqrt(np.where(B * B - A2 * C >= 0, B * B - A2 * C, np.nan))
-        z = np.where(B <= 0, (-B + sq) / A2, C / (-B - sq))
-        q0, q1, q2 = o0 + z * e0, o1 + z * e1, o2 + z * e2
-        z = np.where((A2 > 0) & (q2 > 0), z, np.nan)
-        g0, g1, g2 = -2 * q0, -2 * q1, 2 * T2 * q2                  # grad f in L
-        c0 = cy * g0 + sy * sx * g1 + sy * cx * g2                  # R grad f: in C
-        c1 = cx * g1 - sx * g2
-        c2 = -sy * g0 + cy * sx * g1 + cy * cx * g2
-        out = (z, -c0 / c2, -c1 / c2)
-        if not geometry:
-            return out
-        wz = h + z                                                  # W = P - apex
-        f_tx = wx * (sy * cx * g1 - sy * sx * g2) - wy * (sx * g1 + cx * g2) \
-            + wz * (cy * cx * g1 - cy * sx * g2)                   # W . (dR/dtx) g
-        f_ty = wx * (-sy * g0 + cy * sx * g1 + cy * cx * g2) \
-            - wz * (cy * g0 + sy * sx * g1 + sy * cx * g2)
-        f_b = 2 * T * (1 + T2) * q2 * q2
-        return out + ([-np.ones_like(z), -f_b / c2, -f_tx / c2, -f_ty / c2, c0 / c2,
-                       c1 / c2],)
+def whiten_pair(white, ru, rv):
+    """Whitened pixel rows as a pair: ``ru, rv`` (..., n) with ``white`` (n, 3) or None."""
+    if white is None:
+        return ru, rv
+    out = whiten(white, np.stack([ru, rv], axis=-1))
+    return out[..., 0], out[..., 1]
 
 
 def point_terms(lik, theta, x, y, sig, w):

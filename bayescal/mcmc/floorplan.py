@@ -4,7 +4,7 @@
 its second argument is a :class:`~bayescal.FloorPlan`:
 
 1. **MAP start**: :func:`bayescal.fit.plan_start.plan_map_start` gives
-   ``psi_map = (theta, d_0, a_0, ..., d_{W-1}, a_{W-1}[, log sigma_px])``, the
+   ``psi_map = (theta[, pose], d_0, a_0, ..., d_{W-1}, a_{W-1}[, log sigma_px])``, the
    Laplace covariance of *all* these globals (sensor and walls jointly, from the
    inverse Schur complement of the least squares) and the point azimuths;
 2. **collapsed sampling**: :func:`bayescal.mcmc.sampling.sample_collapsed` with the
@@ -44,7 +44,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                           init=None, moves=None, progress=True, on_unconverged="warn",
                           n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED,
                           outliers=True, outlier_scale=OUTLIER_SCALE,
-                          outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
+                          outlier_prior=OUTLIER_PRIOR, pixel_cov=None, model="aligned"):
     """Sample the posterior of the sensor, the walls of a rough plan and every laser point.
 
     Parameters
@@ -72,13 +72,17 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         Per-point pixel covariances, px^2: the noise of pixel i is ``sigma_px^2
         pixel_cov_i`` (``sigma_px`` a scale on them, ``None``: inferred), as in
         :func:`bayescal.calibrate_simultaneous`.
+    model : {"aligned", "misaligned"}
+        The laser cone; ``"misaligned"`` samples its tilt and offset too (the pose's four
+        numbers after theta in psi; ``post.laser_samples`` (S, 4)).
 
     Returns
     -------
     Posterior
         ``param_samples`` (S, 8), ``point_samples`` (S, N, 3), ``wall_samples``
         (S, W, 2) of ``(d_k mm, a_k rad)``, ``noise_samples`` (S, 1) of
-        ``log sigma_px`` when inferred (then ``logit w`` with outliers);
+        ``log sigma_px`` when inferred (then ``logit w`` with outliers; the pose's four
+        first with ``model="misaligned"``, ``laser_samples`` (S, 4));
         ``outlier_prob`` (N,) or None; ``approx_points`` is NaN (the plan
         replaces them) and ``plan`` the given plan.
     """
@@ -91,7 +95,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
-    ndim = 7 + 2 * plan.n_walls + (sigma_px is None) + bool(outliers)
+    ndim = 7 + 4 * (model == "misaligned") + 2 * plan.n_walls + (sigma_px is None) \
+        + bool(outliers)
     check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
     prior = prior if isinstance(prior, Prior) else Prior(prior)
@@ -100,7 +105,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                                                       outliers=outliers,
                                                       outlier_scale=outlier_scale,
                                                       outlier_prior=outlier_prior,
-                                                      pixel_cov=pixel_cov)
+                                                      pixel_cov=pixel_cov, model=model)
     lik = map_res.extras.pop("likelihood")
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
@@ -117,12 +122,15 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
 def _assemble(lik, prior, map_res, run, rng, *, sigma_px):
     """phi draws, walls and points; the Posterior object."""
     psi, diag = run["psi"], run["diagnostics"]
-    theta, walls, _ = lik.split(psi)
-    phi = prior.sample_phi(theta, rng=rng)
-    n_w = 2 * lik.n_walls
+    geo, walls, _ = lik.split(psi)
+    phi = prior.sample_phi(geo[:, :7], rng=rng)
+    nt, n_w = lik.n_geo, 2 * lik.n_walls
+    # the pose (misaligned model) and the noise levels: the extras other than the walls
+    extra = np.r_[7:nt, nt + n_w:psi.shape[1]]
     return Posterior(
-        param_samples=from_identifiable(theta, phi), point_samples=lik.points_3d(psi, run["q"]),
-        noise_samples=psi[:, 7 + n_w:], noise_names=lik.extra_names[n_w:],
+        param_samples=from_identifiable(geo[:, :7], phi),
+        point_samples=lik.points_3d(psi, run["q"]), noise_samples=psi[:, extra],
+        noise_names=tuple(lik.extra_names[k - 7] for k in extra),
         pixels=lik.pixels, approx_points=np.full((lik.n, 3), np.nan), sigma_px=sigma_px,
         sigma_scene=None, prior=prior, map_result=map_res, tau=diag.tau, ess=diag.ess,
         n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,

@@ -128,7 +128,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         The laser cone (see :func:`~bayescal.calibrate_simultaneous`): with
         ``"misaligned"`` its tilt and offset are sampled too (``post.laser_samples``
         (S, 4)), as four extra globals of the collapsed sampler (``docs/bayes.md``, "The
-        misaligned model"). Approximate points only.
+        misaligned model"). With approximate points or a FloorPlan.
     pixel_cov : array_like, shape (N, 2, 2), optional
         Per-point pixel covariances, px^2 (``bc.extract_laser(...).covariance``): the
         noise of pixel i is ``sigma_px^2 pixel_cov_i``, ``sigma_px`` a scale on them
@@ -154,11 +154,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
     if isinstance(approx_points, FloorPlan):          # walls in place of points
-        if model != "aligned":
-            raise NotImplementedError("model='misaligned' is supported with approximate "
-                                      "points (not yet with a FloorPlan)")
-        kw = {k: v for k, v in locals().items()
-              if k not in ("pixels", "approx_points", "model")}
+        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "

@@ -20,6 +20,7 @@ from ..sensor.parameters import (
     from_identifiable,
     identifiable_jacobian,
 )
+from ..sensor.pose import POSE_NAMES, LaserPose
 from .calibration import CalibrationResult, ConvergenceError, identifiability_report
 
 __all__ = ["check_solution", "make_result", "CHECK_P", "WALL_CHECK_P", "N_RESTARTS"]
@@ -51,7 +52,7 @@ def check_solution(lik, sol):
     the mixture, a wall most of whose points are flagged as outliers fails too
     (:func:`_outlier_walls`).
     """
-    z = (sol.g[8:] - lik.plan.param_nominal) / lik.plan.param_sd
+    z = (sol.g[lik.n_geo + 1:] - lik.plan.param_nominal) / lik.plan.param_sd
     wall_chi2 = float(z @ z)
     p_wall = float(stats.chi2.sf(wall_chi2, z.size))
     p_px = 1.0
@@ -85,49 +86,44 @@ def _outlier_walls(sol, *, min_points=3, share=0.5):
 
 def make_result(lik, sol, absolute_sigma, raise_on_failure):
     """The :class:`~bayescal.results.calibration.CalibrationResult` of a floor-plan MAP ``sol``."""
-    W, N = lik.n_walls, lik.n
+    W, N, nt = lik.n_walls, lik.n, getattr(lik, "n_geo", 7)
+    o = nt + 1                                  # g = (theta[, pose], phi, walls)
     g, sig = sol.g, sol.sigma_px
-    theta, phi = g[:7], g[7]
+    theta, phi = g[:7], g[nt]
     R = sol.ne["R0"]
     # outliers (probability r) leave the noise statistics: each point counts 1 - r
     em = getattr(sol, "em", None)
     keep = np.ones(N) if em is None else 1.0 - em[1]
     chi2 = float(np.sum(keep * np.sum(R * R, axis=1)))
-    n_res, n_unk = 2 * N, 7 + 2 * W + N
+    n_res, n_unk = 2 * N, nt + 2 * W + N
     # plan rows carry the walls: one dof per point's pixel pair
     red = chi2 / max(float(np.sum(keep)), 1.0)
     scale = 1.0 if absolute_sigma else red
     cov = sol.cov * scale
     J = identifiable_jacobian(theta, phi)
-    cov8 = J @ cov[:8, :8] @ J.T
+    sub = np.r_[0:7, nt]                        # (theta, phi) without the pose
+    cov8 = J @ cov[np.ix_(sub, sub)] @ J.T
     params = SensorParams.from_array(from_identifiable(theta, phi))
     noise = {"sigma_px": sig, "kappa": None}
     if em is not None:
         noise["outlier_frac"] = float(em[2])
-    walls = g[8:].reshape(W, 2)
-    points = plan_point(theta, sol.t, walls[sol.wall_index, 0], walls[sol.wall_index, 1])
-    # identifiability of the 8 paper parameters from pixels and plan (walls reduced out,
-    # sensor priors left out)
-    Jp = sol.ne["Jp"]
-    info = sol.S.copy()
-    info[:8, :8] -= Jp.T @ Jp
-    info_t = info[:8, :8] - info[:8, 8:] @ np.linalg.solve(info[8:, 8:], info[8:, :8])
-    e, V = np.linalg.eigh(0.5 * (info_t[:7, :7] + info_t[:7, :7].T))
-    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
-    report = identifiability_report(root @ np.linalg.inv(J)[:7], PARAM_NAMES)
+    walls = g[o:].reshape(W, 2)
+    points = plan_point(g[:nt], sol.t, walls[sol.wall_index, 0], walls[sol.wall_index, 1])
     result = CalibrationResult(
         method="simultaneous", params=params, points=points, covariance=0.5 * (cov8 + cov8.T),
-        covariance_identifiable=cov[:7, :7],
+        covariance_identifiable=cov[:nt, :nt],
+        laser=LaserPose.from_array(g[7:nt], h=params.h) if nt > 7 else None,
         residual_rms={"pixel_px": float(np.sqrt(np.sum(keep[:, None] * (_raw(lik, R) * sig) ** 2)
                                                 / max(2 * np.sum(keep), 1e-300)))},
         sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
         converged=bool(sol.converged and np.all(np.isfinite(g))), message=sol.message,
-        nfev=sol.nfev, identifiability=report,
-        extras={"walls": walls.copy(), "wall_covariance": cov[8:, 8:],
+        nfev=sol.nfev, identifiability=_identifiability(sol, nt, J),
+        extras={"walls": walls.copy(), "wall_covariance": cov[o:, o:],
                 "wall_names": lik.plan.param_names, "wall_index": sol.wall_index,
                 "azimuths": sol.t, "point_covariance": _point_covariances(lik, sol) * scale,
-                "map": sol, "noise": noise, "theta": theta,
-                "identifiable_names": IDENTIFIABLE_NAMES, "reduced_chi2": red,
+                "map": sol, "noise": noise, "theta": g[:nt].copy(),
+                "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
+                "reduced_chi2": red,
                 "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1),
                 "pixels": lik.pixels.copy(),
                 "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px),
@@ -140,6 +136,21 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def _identifiability(sol, nt, J):
+    """What pixels and plan determine of the 8 paper parameters (and the pose): walls
+    reduced out, sensor and pose priors left out; square-root rows in paper coordinates."""
+    o, Jp = nt + 1, sol.ne["Jp"]
+    info = sol.S.copy()
+    info[:o, :o] -= Jp.T @ Jp
+    info_t = info[:o, :o] - info[:o, o:] @ np.linalg.solve(info[o:, o:], info[o:, :o])
+    e, V = np.linalg.eigh(0.5 * (info_t[:nt, :nt] + info_t[:nt, :nt].T))
+    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
+    T = np.zeros((nt, nt + 1))                        # d geometry / d (paper, pose)
+    T[:7, :8] = np.linalg.inv(J)[:7]
+    T[7:, 8:] = np.eye(nt - 7)
+    return identifiability_report(root @ T, PARAM_NAMES + POSE_NAMES[:nt - 7])
 
 
 def _raw(lik, R):
@@ -173,16 +184,16 @@ def _flag_failed_checks(result, chk, W):
 
 def _point_covariances(lik, sol):
     """3x3 Laplace covariance of each point (azimuth, sensor and wall uncertainty)."""
-    W, N = lik.n_walls, lik.n
+    W, N, nt = lik.n_walls, lik.n, getattr(lik, "n_geo", 7)
     g, t, cov, ne = sol.g, sol.t, sol.cov, sol.ne
-    k = sol.wall_index
-    walls = g[8:].reshape(W, 2)
-    _, dPt, dPth, dPw = plan_point(g[:7], t, walls[k, 0], walls[k, 1], jacobian=True)
+    k, o = sol.wall_index, nt + 1
+    walls = g[o:].reshape(W, 2)
+    _, dPt, dPth, dPw = plan_point(g[:nt], t, walls[k, 0], walls[k, 1], jacobian=True)
     idx = np.arange(N)
-    Gg = np.zeros((N, 3, 8 + 2 * W))
-    Gg[:, :, :7] = dPth
-    Gg[idx, :, 8 + 2 * k] = dPw[:, :, 0]
-    Gg[idx, :, 9 + 2 * k] = dPw[:, :, 1]
+    Gg = np.zeros((N, 3, o + 2 * W))
+    Gg[:, :, :nt] = dPth
+    Gg[idx, :, o + 2 * k] = dPw[:, :, 0]
+    Gg[idx, :, o + 1 + 2 * k] = dPw[:, :, 1]
     B, C = ne["B"], ne["C"]
     K = -np.einsum("ij,nj->ni", cov, B) / C[:, None]              # cov(g, t_i): (N, G)
     var_t = 1.0 / C + np.einsum("ni,ij,nj->n", B, cov, B) / C**2

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_finite_array
+from ..sensor.laser import cone_height
 
 __all__ = ["FloorPlan", "Wall", "wall_range", "corner_points", "corner_azimuths",
            "plan_point", "wrap_angle"]
@@ -289,12 +290,15 @@ def wall_range(t, d, a):
 def plan_point(theta, t, d, a, *, jacobian=False):
     """Laser point at azimuth ``t`` on wall ``(d, a)``: on the wall and on the cone.
 
-    ``P = (rho cos t, rho sin t, rho / tan(beta) - h)`` with ``rho = d / cos(t - a)``.
+    ``P = (rho cos t, rho sin t, z)`` with ``rho = d / cos(t - a)`` and ``z = rho /
+    tan(beta) - h`` (aligned cone), or with the laser pose, ``z`` the tilted and offset
+    cone's height above ``(x, y)`` (:func:`~bayescal.sensor.laser.cone_height`).
 
     Parameters
     ----------
-    theta : ndarray, shape (..., 7)
-        Identifiable parameters (only ``h`` and ``beta`` enter).
+    theta : ndarray, shape (..., 7) or (..., 11)
+        Identifiable parameters (only ``h`` and ``beta`` enter), then optionally the
+        laser pose ``(tilt_x, tilt_y, offset_x, offset_y)`` (rad, rad, mm, mm).
     t, d, a : ndarray, shape (...)
         Azimuth (rad), wall distance (mm) and normal azimuth (rad).
     jacobian : bool
@@ -302,15 +306,17 @@ def plan_point(theta, t, d, a, *, jacobian=False):
     Returns
     -------
     P : ndarray, shape (..., 3)
-        mm; NaN where the ray at ``t`` misses the wall.
+        mm; NaN where the ray at ``t`` misses the wall (or the point the cone).
     dP_dt : ndarray, shape (..., 3)
         Only with ``jacobian=True``.
-    dP_dtheta : ndarray, shape (..., 3, 7)
-        Only with ``jacobian=True`` (``h`` and ``beta`` columns).
+    dP_dtheta : ndarray, shape (..., 3, 7) or (..., 3, 11)
+        Only with ``jacobian=True`` (``h``, ``beta`` and the pose's columns).
     dP_dwall : ndarray, shape (..., 3, 2)
         Only with ``jacobian=True``: d P / d (d, a).
     """
     theta = np.asarray(theta, dtype=float)
+    if theta.shape[-1] == 11:
+        return _plan_point_pose(theta, t, d, a, jacobian)
     h, beta = theta[..., 5], theta[..., 6]
     rho, r_t, r_d, r_a = wall_range(t, d, a)
     ct, st, it = np.cos(t), np.sin(t), 1.0 / np.tan(beta)
@@ -325,4 +331,29 @@ def plan_point(theta, t, d, a, *, jacobian=False):
     dth[..., 2, 5] = -1.0
     dth[..., 2, 6] = -rho / np.sin(beta) ** 2
     dwall = np.stack([g * r_d[..., None], g * r_a[..., None]], axis=-1)
+    return P, dP_dt, dth, dwall
+
+
+def _plan_point_pose(theta, t, d, a, jacobian):
+    """:func:`plan_point` on a tilted and offset cone (``theta`` (..., 11)): ``(x, y)`` from
+    the wall, ``z`` and its slopes from :func:`~bayescal.sensor.laser.cone_height` (a
+    trailing axis of length 1 lets theta's leading axes broadcast with ``t``'s)."""
+    rho, r_t, r_d, r_a = wall_range(t, d, a)
+    ct, st = np.cos(t), np.sin(t)
+    x, y = rho * ct, rho * st
+    out = cone_height(theta, x[..., None], y[..., None], geometry=jacobian)
+    z, zx, zy = (o[..., 0] for o in out[:3])
+    P = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    if not jacobian:
+        return P
+    gx, gy = np.broadcast_arrays(ct, st, z)[:2]
+
+    def lift(dx, dy):                       # (dx, dy) of (x, y) -> (dx, dy, dz) on the cone
+        return np.stack(np.broadcast_arrays(dx, dy, zx * dx + zy * dy), axis=-1)
+
+    dP_dt = lift(r_t * ct - y, r_t * st + x)
+    dth = np.zeros(P.shape[:-1] + (3, 11))
+    for col, dz in zip((5, 6, 7, 8, 9, 10), out[3], strict=True):
+        dth[..., 2, col] = dz[..., 0]
+    dwall = np.stack([lift(gx * r_d, gy * r_d), lift(gx * r_a, gy * r_a)], axis=-1)
     return P, dP_dt, dth, dwall

@@ -159,8 +159,6 @@ def test_bayes_auto_samples_the_preferred_model(rooms, capsys, monkeypatch):
 
 
 @pytest.mark.parametrize("args, match", [
-    (["--walls", "{d}/walls.csv", "--model", "misaligned"],
-     "--model misaligned is not supported with --walls (a floor plan) yet"),
     (["--prior", "tilt_x=norm(0, 0.01)"], "--prior tilt_x=...: a prior of the laser pose is "
      "used only when the pose is fitted"),
     (["--walls", "{d}/walls.csv", "--model", "auto", "--prior", "offset_y=norm(0, 3)"],
@@ -198,11 +196,24 @@ def test_auto_falls_back_to_aligned_on_a_floor_plan(rooms, capsys, monkeypatch):
     rc, cap = _run(rooms, capsys, monkeypatch, "tilted", "--walls", "tilted/walls.csv",
                    "--model", "auto", "--out", "plan")
     assert rc == 0, cap.err
-    note = "--model auto: the misaligned model is not supported with --walls (a floor plan) yet"
+    note = ("--model auto compares the models by the Laplace evidence, which the floor-plan "
+            "least squares does not compute")
     assert note in cap.out
     rec = json.loads((rooms / "plan" / "run.json").read_text())["laser_model"]
     assert rec["fitted"] == "aligned" and rec["note"].startswith(note)
     assert note in (rooms / "plan" / "report.md").read_text()
+
+
+def test_misaligned_model_on_a_floor_plan(rooms, capsys, monkeypatch):
+    rc, cap = _run(rooms, capsys, monkeypatch, "tilted", "--walls", "tilted/walls.csv",
+                   "--model", "misaligned", "--out", "planmis")
+    assert rc == 0, cap.err
+    rec = json.loads((rooms / "planmis" / "run.json").read_text())["laser_model"]
+    assert rec["fitted"] == "misaligned"
+    rows = _params_csv(rooms / "planmis" / "params.csv")
+    assert set(bc.POSE_NAMES) <= set(rows)
+    assert model_setting("misaligned", method="bayes", plan=object(),
+                         prior_specs=[("tilt_x", None)]) == ("misaligned", None)
 
 
 def test_model_setting_falls_back_only_for_auto():

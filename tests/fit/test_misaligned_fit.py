@@ -82,10 +82,10 @@ def test_bad_model_and_unsupported_combinations():
     with pytest.raises(ValueError, match="model must be one of"):
         bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
                                   sigma_scene=ds.sigma_scene, model="tilted")
-    with pytest.raises(NotImplementedError, match="FloorPlan"):
-        bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.2, model="misaligned")
-    with pytest.raises(NotImplementedError, match="FloorPlan"):
-        bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.2, model="misaligned")
+    with pytest.raises(NotImplementedError, match="estimate_points=True"):
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                  sigma_scene=ds.sigma_scene, model="misaligned",
+                                  estimate_points=False)
 
 
 def test_misaligned_posterior(tmp_path):

@@ -153,3 +153,43 @@ def test_walls_property_returns_the_segments_as_given():
     walls = bc.room_walls(1000)
     plan = bc.FloorPlan(walls, distance_sd=20.0, angle_sd=0.01)
     np.testing.assert_array_equal(plan.walls, walls)
+
+
+POSE = np.array([0.02, -0.015, 4.0, -6.0])          # tilt_x, tilt_y (rad), offset (mm)
+
+
+def test_plan_point_on_a_misaligned_cone_jacobians(sensor, numdiff):
+    g = np.r_[sensor.to_identifiable(), POSE]
+    t, d, a = np.array([0.3, -2.0]), np.array([900.0, 1500.0]), np.array([0.1, -2.2])
+    P, dPt, dPth, dPw = plan_point(g, t, d, a, jacobian=True)
+    assert dPth.shape == (2, 3, 11)
+    # on the wall and on the tilted cone (the pose module's own cone equation)
+    np.testing.assert_allclose(P[:, 0] * np.cos(a) + P[:, 1] * np.sin(a), d, rtol=1e-12)
+    lit = bc.cone_point(sensor, P[:, :2], laser=bc.LaserPose.from_array(POSE))
+    np.testing.assert_allclose(P, lit, atol=1e-9)
+    for j in range(2):
+        np.testing.assert_allclose(
+            dPt[j], numdiff(lambda x, j=j: plan_point(g, x[0], d[j], a[j]), [t[j]], 1e-6)[:, 0],
+            rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(
+            dPth[j], numdiff(lambda x, j=j: plan_point(x, t[j], d[j], a[j]), g,
+                             1e-6 * np.maximum(1, np.abs(g))), rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(
+            dPw[j], numdiff(lambda x, j=j: plan_point(g, t[j], x[0], x[1]), [d[j], a[j]],
+                            [1e-4, 1e-7]), rtol=1e-6, atol=1e-6)
+    assert np.all(dPth[:, 2, 7:] != 0)                   # the pose moves the point's height
+
+
+def test_plan_point_at_zero_pose_is_the_aligned_point(sensor, rng):
+    theta = sensor.to_identifiable()
+    t, d, a = rng.uniform(-0.6, 0.6, 20), rng.uniform(500, 3000, 20), np.zeros(20)
+    out7 = plan_point(theta, t, d, a, jacobian=True)
+    out11 = plan_point(np.r_[theta, np.zeros(4)], t, d, a, jacobian=True)
+    for x7, x11 in zip(out7[:2] + out7[3:], out11[:2] + out11[3:], strict=True):
+        np.testing.assert_allclose(x11, x7, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(out11[2][..., :7], out7[2], rtol=1e-9, atol=1e-9)
+    # walkers: theta (S, 1, 11) with azimuths (S, N)
+    G = np.stack([np.r_[theta, POSE], np.r_[theta, np.zeros(4)]])
+    P = plan_point(G[:, None, :], np.stack([t, t]), d, a)
+    np.testing.assert_allclose(P[1], out7[0], rtol=1e-9)
+    np.testing.assert_allclose(P[0], plan_point(G[0], t, d, a), rtol=1e-12)

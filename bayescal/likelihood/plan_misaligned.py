@@ -1,0 +1,82 @@
+"""The floor-plan likelihood with a misaligned laser cone (tilted and offset).
+
+:class:`~bayescal.likelihood.floorplan.PlanLikelihood` puts each laser point on its
+wall at azimuth ``t`` and on the paper's aligned cone, ``z = rho / tan(beta) - h``. A
+hand-assembled sensor has the cone tilted by ``(tilt_x, tilt_y)`` and its apex offset by
+``(offset_x, offset_y)`` (convention: ``docs/conventions.md``); the point is then still
+``(x, y) = rho (cos t, sin t)`` on the wall, with ``z`` the tilted cone's height above
+``(x, y)`` (:func:`~bayescal.sensor.laser.cone_height`) and ``dz/dt = z_x dx/dt + z_y
+dy/dt`` from its slopes. Everything else (the two truncated Laplace pieces per point,
+the Jeffreys prior, the outlier mixture) is the aligned likelihood's.
+
+As for approximate points (:class:`~bayescal.likelihood.misaligned.MisalignedLikelihood`),
+the pose enters as the first four extra globals:
+``psi = (theta (7), pose (4), d_0, a_0, ..., [log sigma_px], [logit w])``, with the
+pose's prior from :class:`~bayescal.likelihood.priors.Prior` (``pose_dists``); ``split``
+returns the 11 numbers ``(theta, pose)`` as the geometry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sensor.laser import cone_height
+from ..sensor.pose import POSE_NAMES
+from .floorplan import PlanLikelihood
+from .misaligned import N_GEO_MISALIGNED
+from .priors import Prior
+
+__all__ = ["MisalignedPlanLikelihood", "plan_likelihood"]
+
+
+class MisalignedPlanLikelihood(PlanLikelihood):
+    """:class:`~bayescal.likelihood.floorplan.PlanLikelihood` on a tilted and offset cone.
+
+    Parameters are those of the aligned likelihood, plus:
+
+    Parameters
+    ----------
+    prior : Prior or dict, optional
+        Where the pose's prior is read (``Prior.pose_dists``; default zero +- 2 deg
+        tilt and 5 mm offset, :func:`~bayescal.likelihood.priors.default_pose_prior`).
+
+    Notes
+    -----
+    The geometry ``g`` (..., 11) replaces theta in ``split``, ``points_3d`` and
+    ``residuals`` (``n_geo = 11``; ``J_theta`` of the residuals (N, 2, 11)).
+    ``extra_names`` starts with the four pose names. At zero pose every quantity equals
+    the aligned likelihood's to rounding.
+    """
+
+    n_geo = N_GEO_MISALIGNED
+
+    def __init__(self, pixels, plan, *, prior=None, **kw):
+        super().__init__(pixels, plan, **kw)
+        self.prior = prior if isinstance(prior, Prior) else Prior(prior)
+
+    @property
+    def extra_names(self):
+        """The pose's four names, then the aligned plan likelihood's extra globals."""
+        return POSE_NAMES + super().extra_names
+
+    def log_prior_extra(self, extra):
+        """Log prior of the pose (first four entries) and of the walls and noise after it."""
+        extra = np.asarray(extra, dtype=float)
+        return (self.prior.logpdf_pose(extra[..., :4])
+                + super().log_prior_extra(extra[..., 4:]))
+
+    def _height(self, theta, rho, r_t, x, y, dx, dy):
+        """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""
+        z, zx, zy = cone_height(theta, x, y)
+        return z, zx * dx + zy * dy
+
+
+def plan_likelihood(model, pixels, plan, prior, **kw):
+    """The floor-plan likelihood of ``model`` (``"aligned"`` or ``"misaligned"``; the
+    misaligned one reads the pose prior from ``prior``); the keywords are
+    :class:`~bayescal.likelihood.floorplan.PlanLikelihood`'s."""
+    if model == "misaligned":
+        return MisalignedPlanLikelihood(pixels, plan, prior=prior, **kw)
+    if model != "aligned":
+        raise ValueError(f"model must be 'aligned' or 'misaligned', got {model!r}")
+    return PlanLikelihood(pixels, plan, **kw)
