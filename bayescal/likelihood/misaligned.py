@@ -27,13 +27,39 @@ from ..sensor.pose import POSE_NAMES
 from .points import LaserLikelihood
 from .priors import Prior
 
-__all__ = ["MisalignedLikelihood", "N_GEO_MISALIGNED"]
+__all__ = ["MisalignedLikelihood", "PoseGlobals", "N_GEO_MISALIGNED"]
 
 #: number of geometric unknowns of the misaligned model (theta then the pose)
 N_GEO_MISALIGNED = 11
 
 
-class MisalignedLikelihood(LaserLikelihood):
+class PoseGlobals:
+    """The laser pose as the first four extra globals (mixin of the misaligned likelihoods).
+
+    Put before the aligned likelihood in the bases; takes ``prior`` (a
+    :class:`~bayescal.likelihood.priors.Prior` or a dict), whose ``pose_dists`` give the
+    pose's prior, and passes everything else on.
+    """
+
+    n_geo = N_GEO_MISALIGNED
+
+    def __init__(self, pixels, scene, *, prior=None, **kw):
+        super().__init__(pixels, scene, **kw)
+        self.prior = prior if isinstance(prior, Prior) else Prior(prior)
+
+    @property
+    def extra_names(self):
+        """The pose's four names, then the aligned likelihood's extra globals."""
+        return POSE_NAMES + super().extra_names
+
+    def log_prior_extra(self, extra):
+        """Log prior of the pose (first four entries) and of the other extra globals."""
+        extra = np.asarray(extra, dtype=float)
+        return (self.prior.logpdf_pose(extra[..., :4])
+                + super().log_prior_extra(extra[..., 4:]))
+
+
+class MisalignedLikelihood(PoseGlobals, LaserLikelihood):
     """:class:`~bayescal.likelihood.points.LaserLikelihood` on a tilted and offset cone.
 
     Parameters are those of the aligned likelihood, plus:
@@ -48,22 +74,5 @@ class MisalignedLikelihood(LaserLikelihood):
     -----
     The geometry ``g`` (..., 11) replaces theta in ``residuals`` and the
     per-point terms (``n_geo = 11``); ``split`` returns it first. ``extra_names``
-    starts with the four pose names.
+    starts with the four pose names (:class:`PoseGlobals`).
     """
-
-    n_geo = N_GEO_MISALIGNED
-
-    def __init__(self, pixels, approx_points, *, prior=None, **kw):
-        super().__init__(pixels, approx_points, **kw)
-        self.prior = prior if isinstance(prior, Prior) else Prior(prior)
-
-    @property
-    def extra_names(self):
-        """The pose's four names, then the aligned model's extra globals."""
-        return POSE_NAMES + super().extra_names
-
-    def log_prior_extra(self, extra):
-        """Log prior of the pose (first four entries) and of the other extra globals."""
-        extra = np.asarray(extra, dtype=float)
-        return (self.prior.logpdf_pose(extra[..., :4])
-                + super().log_prior_extra(extra[..., 4:]))

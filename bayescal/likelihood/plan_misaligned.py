@@ -18,18 +18,14 @@ returns the 11 numbers ``(theta, pose)`` as the geometry.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..sensor.laser import cone_height
-from ..sensor.pose import POSE_NAMES
 from .floorplan import PlanLikelihood
-from .misaligned import N_GEO_MISALIGNED
-from .priors import Prior
+from .misaligned import PoseGlobals
 
 __all__ = ["MisalignedPlanLikelihood", "plan_likelihood"]
 
 
-class MisalignedPlanLikelihood(PlanLikelihood):
+class MisalignedPlanLikelihood(PoseGlobals, PlanLikelihood):
     """:class:`~bayescal.likelihood.floorplan.PlanLikelihood` on a tilted and offset cone.
 
     Parameters are those of the aligned likelihood, plus:
@@ -44,26 +40,9 @@ class MisalignedPlanLikelihood(PlanLikelihood):
     -----
     The geometry ``g`` (..., 11) replaces theta in ``split``, ``points_3d`` and
     ``residuals`` (``n_geo = 11``; ``J_theta`` of the residuals (N, 2, 11)).
-    ``extra_names`` starts with the four pose names. At zero pose every quantity equals
-    the aligned likelihood's to rounding.
+    ``extra_names`` starts with the four pose names (:class:`~.misaligned.PoseGlobals`).
+    At zero pose every quantity equals the aligned likelihood's to rounding.
     """
-
-    n_geo = N_GEO_MISALIGNED
-
-    def __init__(self, pixels, plan, *, prior=None, **kw):
-        super().__init__(pixels, plan, **kw)
-        self.prior = prior if isinstance(prior, Prior) else Prior(prior)
-
-    @property
-    def extra_names(self):
-        """The pose's four names, then the aligned plan likelihood's extra globals."""
-        return POSE_NAMES + super().extra_names
-
-    def log_prior_extra(self, extra):
-        """Log prior of the pose (first four entries) and of the walls and noise after it."""
-        extra = np.asarray(extra, dtype=float)
-        return (self.prior.logpdf_pose(extra[..., :4])
-                + super().log_prior_extra(extra[..., 4:]))
 
     def _height(self, theta, rho, r_t, x, y, dx, dy):
         """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""
