@@ -283,8 +283,6 @@ def _calibrate(job, choice):
                       "was written") from None
     if job.sigma_px is not None:
         result.extras["sigma_px"] = float(job.sigma_px)
-    if uses_pixel_cov(job.method, data, job.plan):     # the model check whitens with them
-        result.extras["pixel_cov"] = data.pixel_cov
     if job.sigma_scene is not None and job.method == "simultaneous":
         result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
     if not result.converged:
