@@ -4,7 +4,8 @@ The criterion is the Laplace estimate of each fit's log evidence
 (``result.extras["log_evidence"]``, computed by the least squares; a posterior uses its
 MAP's): the collapsed log likelihood (every laser point integrated out) and the log prior
 at the MAP, plus the Gaussian volume ``(d/2) log 2 pi + log det(cov)/2`` of its d
-geometric unknowns. The misaligned model's four extra unknowns cost it an Occam factor
+geometric unknowns (with a floor plan, the walls' too: they are integrated like the
+sensor). The misaligned model's four extra unknowns cost it an Occam factor
 of roughly ``log(prior sd / posterior sd)`` each (about 6 nats on an aligned sensor in a
 2500 mm room); a tilt that moves the pixels pays that back many times over. Plain
 leave-one-out does not apply here (each laser point has its own latent position, so a
@@ -75,8 +76,8 @@ def _log_evidence(result, k):
     ev = getattr(res, "extras", {}).get("log_evidence")
     if ev is None or not np.isfinite(ev):
         raise ValueError(f"results[{k}] has no log evidence (a {getattr(res, 'method', '?')} "
-                         "result, a floor-plan fit or a file saved before it existed); "
-                         "compare simultaneous fits on approximate points")
+                         "result or a file saved before it existed); compare simultaneous "
+                         "fits on approximate points or a floor plan")
     return float(ev)
 
 

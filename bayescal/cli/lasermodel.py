@@ -5,12 +5,14 @@ Job side (:mod:`bayescal.cli.jobs`): :func:`nominal_and_prior` reads ``--nominal
 checks ``--model`` against the method and the scene: the misaligned model is fitted
 from approximate points or a floor plan (``--walls``) with ``--method simultaneous`` or
 ``bayes``, and by the sequential method's stage 2. ``auto`` (which compares the Laplace
-evidence of least-squares fits on approximate points) falls back to ``aligned`` with a
-note on the sequential and floor-plan paths.
+evidence of least-squares fits on approximate points or a floor plan) falls back to
+``aligned`` with a note on the sequential path.
 
 Run side (:mod:`bayescal.cli.runs`): :class:`ModelChoice` records what was fitted and,
 for ``auto``, fits both models by least squares and ranks them with
-:func:`bayescal.compare_models` (Laplace evidence; ``docs/model.md``).
+:func:`bayescal.compare_models` (Laplace evidence; ``docs/model.md``): the preferred model
+when the difference is decisive, else the misaligned one (it contains the aligned model,
+so its intervals hold either way).
 """
 
 from __future__ import annotations
@@ -95,10 +97,6 @@ def model_setting(model, *, method, plan, prior_specs):
     if model not in LASER_MODELS:
         raise UsageError(f"--model {model!r}; expected one of {', '.join(LASER_MODELS)}")
     note = None
-    if plan is not None and model == "auto":
-        model, note = "aligned", ("--model auto compares the models by the Laplace evidence, "
-                                  "which the floor-plan least squares does not compute; fitted "
-                                  "the aligned model (ask for --model misaligned)")
     if method == "sequential" and model == "auto":
         model, note = "aligned", ("--model auto compares least-squares fits on approximate "
                                   "points by their evidence, which the sequential method has "
@@ -107,7 +105,7 @@ def model_setting(model, *, method, plan, prior_specs):
     if pose and model == "aligned":
         raise UsageError(f"--prior {pose[0]}=...: a prior of the laser pose is used only when "
                          "the pose is fitted; expected --model misaligned or auto (with "
-                         "approximate points, --method simultaneous or bayes)")
+                         "--method simultaneous or bayes)")
     return model, note
 
 
@@ -122,7 +120,9 @@ class ModelChoice:
     model : {"aligned", "misaligned"} or None
         The model fitted (None until :meth:`resolve` ran).
     note : str or None
-        Why ``auto`` fell back, or why one of its fits was left out.
+        Why ``auto`` fell back, why one of its fits was left out, or that the evidence
+        did not decide (then ``auto`` uses the misaligned model: it contains the aligned
+        one, so its intervals hold whichever is true).
     comparison : ModelComparison or None
         ``auto``: :func:`bayescal.compare_models` of the two least-squares fits.
     fits : dict
@@ -149,6 +149,7 @@ class ModelChoice:
             return self
         import bayescal as bc
 
+        from ..checks.compare import DECISIVE
         from ..results.calibration import ConvergenceError
 
         failed = []
@@ -161,8 +162,12 @@ class ModelChoice:
                 raise Failure(f"--model auto: the least squares of the {m} model failed on "
                               f"these data ({exc}); nothing was written") from None
         if len(self.fits) == 2:
-            self.comparison = bc.compare_models([self.fits[m] for m in FITTED_MODELS])
-            self.model = self.comparison.preferred_model
+            c = self.comparison = bc.compare_models([self.fits[m] for m in FITTED_MODELS])
+            self.model = c.preferred_model if c.decisive else "misaligned"
+            if not c.decisive:
+                self.note = (f"--model auto: the evidence does not decide (within {DECISIVE:g} "
+                             "nats); used the misaligned model, which contains the aligned "
+                             "one, so that its intervals hold either way")
             return self
         self.model = next(iter(self.fits), "aligned")
         self.note = (f"--model auto: the least squares of the {' and '.join(failed)} model "

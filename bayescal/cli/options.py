@@ -304,7 +304,7 @@ CALIBRATE_OPTIONS = (
                        "unknowns, priors 0 +- 2 deg and 0 +- 5 mm, --prior tilt_x=... to "
                        "change them), auto (fit both by least squares and keep the one with "
                        "the larger Laplace evidence); misaligned and auto need approximate "
-                       "points with --method simultaneous or bayes"}),
+                       "points or --walls with --method simultaneous or bayes"}),
     Opt(("--calibration",), {"type": input_file, "help": "sequential: NPZ with "
                              "CalibrationData fields, or grid CSV (plane, u, v, x, y, z)"}),
     Opt(("--calibration-laser",), {"type": input_file, "help": "sequential with a grid CSV: "

@@ -444,7 +444,7 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
-    result = make_result(lik, sol, absolute_sigma, False)
+    result = make_result(lik, sol, absolute_sigma, False, prior=prior)
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
                        noise_inferred=lik.infer_px)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
-from ..results.floorplan import make_result
-from .floorplan import _fit, _logit
+from ..results.floorplan import make_result, plan_psi
+from .floorplan import _fit
 
 __all__ = ["plan_map_start"]
 
@@ -42,25 +42,15 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
-    res = make_result(lik, sol, absolute_sigma, raise_on_failure)
+    res = make_result(lik, sol, absolute_sigma, raise_on_failure, prior=prior)
     res.extras["likelihood"] = lik
     # typical horizontal range of the laser points: where a finite-range ring radius would
     # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)
     lik.reference_range = float(np.median(np.hypot(res.points[:, 0], res.points[:, 1])))
-    keep = np.r_[0:lik.n_geo, lik.n_geo + 1:len(sol.g)]     # phi out
-    psi = sol.g[keep]
-    cov = sol.cov[np.ix_(keep, keep)]
-    extra, var = [], []
-    if lik.infer_px:
-        extra.append(np.log(sol.sigma_px))
-        var.append(1.0 / (2 * lik.n))
-    if lik.outliers:
-        extra.append(_logit(np.clip(sol.em[2], 1e-4, 0.5)))
-        var.append(1.0)
-    psi = np.append(psi, extra)
-    c = np.diag(np.r_[np.zeros(len(keep)), var])
-    c[:len(keep), :len(keep)] = cov
-    cov = c
+    psi, cov_g, d = plan_psi(lik, sol)
+    var = ([1.0 / (2 * lik.n)] if lik.infer_px else []) + ([1.0] if lik.outliers else [])
+    cov = np.diag(np.r_[np.zeros(d), var])
+    cov[:d, :d] = cov_g
     _restrict_pieces(lik, psi, cov)
     return psi, cov, sol.t[:, None], res
 

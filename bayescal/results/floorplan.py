@@ -23,7 +23,8 @@ from ..sensor.parameters import (
 from ..sensor.pose import POSE_NAMES, LaserPose
 from .calibration import CalibrationResult, ConvergenceError, identifiability_report
 
-__all__ = ["check_solution", "make_result", "CHECK_P", "WALL_CHECK_P", "N_RESTARTS"]
+__all__ = ["check_solution", "make_result", "plan_psi", "plan_log_evidence", "CHECK_P",
+           "WALL_CHECK_P", "N_RESTARTS"]
 
 #: p-value below which the MAP's pixel chi-square (pixel noise given) marks a wrong minimum:
 #: restart (a mis-stated sigma_px is not a failed fit)
@@ -84,8 +85,10 @@ def _outlier_walls(sol, *, min_points=3, share=0.5):
     return [(int(k), int(n_out[k]), int(on[k])) for k in bad]
 
 
-def make_result(lik, sol, absolute_sigma, raise_on_failure):
-    """The :class:`~bayescal.results.calibration.CalibrationResult` of a floor-plan MAP ``sol``."""
+def make_result(lik, sol, absolute_sigma, raise_on_failure, prior=None):
+    """The :class:`~bayescal.results.calibration.CalibrationResult` of a floor-plan MAP ``sol``
+    (with ``prior``, the :class:`~bayescal.likelihood.priors.Prior` of the fit, its
+    ``extras["log_evidence"]``: :func:`plan_log_evidence`)."""
     W, N, nt = lik.n_walls, lik.n, getattr(lik, "n_geo", 7)
     o = nt + 1                                  # g = (theta[, pose], phi, walls)
     g, sig = sol.g, sol.sigma_px
@@ -127,7 +130,8 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
                 "floor_plan": lik.plan, "em_rounds": getattr(sol, "em_rounds", 1),
                 "pixels": lik.pixels.copy(),
                 "sigma_px": None if lik.sigma_px is None else float(lik.sigma_px),
-                "pixel_cov": getattr(lik, "pixel_cov", None)},
+                "pixel_cov": getattr(lik, "pixel_cov", None),
+                "log_evidence": None if prior is None else plan_log_evidence(lik, prior, sol)},
         outlier_prob=None if em is None else em[1].copy())
     result.extras["check"] = sol.check
     if result.converged:
@@ -136,6 +140,39 @@ def make_result(lik, sol, absolute_sigma, raise_on_failure):
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def plan_psi(lik, sol):
+    """The collapsed sampler's globals at a floor-plan MAP and their Laplace covariance.
+
+    Returns ``psi = (theta[, pose], walls flattened[, log sigma_px][, logit w])`` (phi
+    left out), the covariance of its geometry and walls (the inverse Schur complement),
+    and the number of those (the noise level and the outlier fraction after them are
+    held at their fitted values).
+    """
+    nt = lik.n_geo
+    keep = np.r_[0:nt, nt + 1:len(sol.g)]               # phi out
+    extra = []
+    if lik.infer_px:
+        extra.append(np.log(sol.sigma_px))
+    if lik.outliers:
+        w = np.clip(sol.em[2], 1e-4, 0.5)
+        extra.append(np.log(w / (1.0 - w)))
+    return np.append(sol.g[keep], extra), sol.cov[np.ix_(keep, keep)], len(keep)
+
+
+def plan_log_evidence(lik, prior, sol):
+    """Laplace estimate of the log evidence of a floor-plan fit (``docs/model.md``, "Which
+    model"): the collapsed log likelihood (azimuths integrated out) and the log prior at
+    the MAP, plus ``(d/2) log 2 pi + log det(cov)/2`` of the d geometric and wall
+    unknowns; noise level and outlier fraction held at their fitted values. Comparable
+    between the aligned and misaligned fits of the same pixels and plan."""
+    psi, cov, d = plan_psi(lik, sol)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        value = (lik.laplace(psi)[0] + prior.logpdf_theta(psi[:7])
+                 + lik.log_prior_extra(psi[7:]))
+        sign, logdet = np.linalg.slogdet(cov)
+    return float(value + 0.5 * d * np.log(2 * np.pi) + 0.5 * logdet) if sign > 0 else np.nan
 
 
 def _identifiability(sol, nt, J):
