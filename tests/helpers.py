@@ -19,3 +19,24 @@ def gross_plan_pixels(ds, i, kind):
     Q = plan_point(theta, np.array([t]), np.array([1.4 * rho]), np.array([t]))
     pix[i] = project_theta(theta, Q)[0][0] + ds.pixels[i] - project_theta(theta, P[None])[0][0]
     return pix
+
+
+def check_seed_scatter(means, errs):
+    """Is a chain's ESS honest? ``means`` and ``errs`` (seeds, k): each sampler seed's
+    posterior means and claimed Monte-Carlo errors ``sd / sqrt(ESS)``. The sd of the means
+    over the rms claimed error follows ``sqrt(chi2_(m-1) / (m-1))`` per coordinate if the
+    ESS is right: each coordinate inside the family-wise band (1 - 1e-3 over k), and the
+    mean square inside the 99 % band (the fully correlated, widest null). Returns the ratios.
+    """
+    from scipy import stats
+
+    m, k = np.shape(means)
+    ratio = np.std(means, axis=0, ddof=1) / np.sqrt(np.mean(np.square(errs), axis=0))
+    print(np.round(ratio, 2))
+    p = 1e-3 / k / 2
+    lo, hi = np.sqrt(stats.chi2(m - 1).ppf([p, 1 - p]) / (m - 1))
+    assert np.all((ratio > lo) & (ratio < hi)), ratio
+    pooled = np.mean(ratio**2)
+    band = stats.chi2(m - 1).ppf([0.005, 0.995]) / (m - 1)
+    assert band[0] < pooled < band[1], pooled
+    return ratio

@@ -360,11 +360,11 @@ class PlanLikelihood:
             raise ValueError("outlier_prob needs a likelihood built with outliers=True")
         return self._mixture(psi, n_iter)[-1]
 
-    def _mixture(self, psi, n_iter):
+    def _mixture(self, psi, n_iter, pieces=None):
         """Per-point log marginal (..., N), dominant mode (..., N, 1), its inlier precision
         (..., N) and the outlier probability (..., N) (None without the mixture)."""
         _, _, sig = self.split(psi)
-        logm, ts, Cs, lo = self._pieces(psi, n_iter=n_iter)
+        logm, ts, Cs, lo = self._pieces(psi, n_iter=n_iter) if pieces is None else pieces
         # Laplace: sqrt(2 pi / C); Jeffreys prior: sqrt(C_ref); pixel normaliser
         norm = (-np.log(sig[..., None]) - np.log(self.ref_sigma_px) - 0.5 * _LOG2PI
                 + self._px_log_det)

@@ -10,7 +10,8 @@ dy/dt`` from its slopes. Everything else (the two truncated Laplace pieces per p
 the Jeffreys prior, the outlier mixture) is the aligned likelihood's.
 
 As for approximate points (:class:`~bayescal.likelihood.misaligned.MisalignedLikelihood`),
-the pose enters as the first four extra globals:
+the pose enters as the first four extra globals, and the log marginal has a gradient
+(:class:`~bayescal.likelihood.plan_gradient.PlanGradient`) for the sampler's HMC move:
 ``psi = (theta (7), pose (4), d_0, a_0, ..., [log sigma_px], [logit w])``, with the
 pose's prior from :class:`~bayescal.likelihood.priors.Prior` (``pose_dists``); ``split``
 returns the 11 numbers ``(theta, pose)`` as the geometry.
@@ -21,11 +22,12 @@ from __future__ import annotations
 from ..sensor.laser import cone_height
 from .floorplan import PlanLikelihood
 from .misaligned import PoseGlobals
+from .plan_gradient import PlanGradient
 
 __all__ = ["MisalignedPlanLikelihood", "plan_likelihood"]
 
 
-class MisalignedPlanLikelihood(PoseGlobals, PlanLikelihood):
+class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     """:class:`~bayescal.likelihood.floorplan.PlanLikelihood` on a tilted and offset cone.
 
     Parameters are those of the aligned likelihood, plus:
@@ -43,6 +45,17 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanLikelihood):
     ``extra_names`` starts with the four pose names (:class:`~.misaligned.PoseGlobals`).
     At zero pose every quantity equals the aligned likelihood's to rounding.
     """
+
+    #: production shares of the sampler's HMC and independence moves, and the HMC
+    #: trajectory (whitened units): more and longer HMC than the sampler's defaults (0.3,
+    #: 0.6, 1.5), because this posterior is far from Gaussian along the tilt, the principal
+    #: point and a shift of the walls (``docs/floorplan.md`` section 13)
+    move_weights = (0.45, 0.55)
+    hmc_path = 2.0
+    #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`):
+    #: halves the autocorrelation time here; the per-point posterior, nearly Gaussian,
+    #: gains nothing from it (measured, ``docs/floorplan.md`` section 13)
+    pose_coordinates = True
 
     def _height(self, theta, rho, r_t, x, y, dx, dy):
         """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""

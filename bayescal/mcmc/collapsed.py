@@ -47,7 +47,7 @@ HMC_PATH = 1.5
 
 
 def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
-                  n_leapfrog=None):
+                  n_leapfrog=None, weights=None):
     """emcee moves used by default.
 
     With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
@@ -55,7 +55,8 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     matrix ``cov^-1``, leapfrog step ``step_size`` in whitened units),
     :class:`~bayescal.mcmc.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
     between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
-    (the rest). Without a gradient: the independence proposal (80 %) and DEMove
+    (the rest); ``weights`` (HMC, independence) replaces the two shares (a likelihood's
+    ``move_weights``). Without a gradient: the independence proposal (80 %) and DEMove
     (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
     ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
     distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
@@ -68,11 +69,11 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
         return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
                 (de_move(), 0.2)]
     n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
-    moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog),
-              HMC_WEIGHT),
-             (IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), IMH_WEIGHT),
-             (de_move(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)]
-    return [(m, w) for m, w in moves if w > 0]
+    w_hmc, w_imh = (HMC_WEIGHT, IMH_WEIGHT) if weights is None else weights
+    moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog), w_hmc),
+             (IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), w_imh),
+             (de_move(), 1.0 - w_hmc - w_imh)]
+    return [(m, w) for m, w in moves if w > 1e-12]
 
 
 def _moves_text(moves):
@@ -202,8 +203,10 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     n_walkers = int(n_walkers)
     # the ring radius at the points' median range (docs/bayes.md section 3)
     names = tuple(lik.extra_names)
-    coords = Coordinates(getattr(lik, "reference_range", None),
-                         7 + names.index("outlier_frac") if "outlier_frac" in names else None)
+    rho_ref = getattr(lik, "reference_range", None)
+    coords = Coordinates(rho_ref,
+                         7 + names.index("outlier_frac") if "outlier_frac" in names else None,
+                         pose=getattr(lik, "pose_coordinates", False) and rho_ref is not None)
     target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
     if n_tune is None:
         # HMC mixes fast: short tuning rounds suffice (tune_proposal pools the last two
@@ -218,8 +221,11 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     p0 = spread_walkers(fit["state"], target, fit["cov"], rng)
     vg = target.value_and_grad if target.has_gradient else None
     # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
-    n_leap = int(np.clip(round(HMC_PATH / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
+    # (a likelihood whose posterior the independence proposal fits badly asks for more HMC)
+    path = getattr(lik, "hmc_path", HMC_PATH)
+    n_leap = int(np.clip(round(path / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
     prod_moves = default_moves(fit["mean"], spd_covariance(fit["cov"], cov_s), value_and_grad=vg,
+                               weights=getattr(lik, "move_weights", None),
                                step_size=fit["step_size"], n_leapfrog=n_leap) \
         if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)

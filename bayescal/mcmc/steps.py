@@ -2,8 +2,9 @@
 
 :func:`bayescal.mcmc.sampling.sample_collapsed` calls them in order:
 
-1. :func:`to_sampling` / :func:`from_sampling`: sampling coordinates (ring radii in
-   place of gamma, ``H = h * depth_scale`` in place of h, ``docs/bayes.md`` section 3);
+1. :class:`~bayescal.mcmc.coordinates.Coordinates`: sampling coordinates (ring radii in
+   place of gamma, ``H = h * depth_scale`` in place of h, ``docs/bayes.md`` section 3;
+   re-exported here);
 2. :class:`CollapsedTarget`: the log posterior with the points integrated out;
 3. :func:`tune_proposal`: short emcee runs (HMC, independence, DE) refit the
    proposal and mass matrix and adapt the HMC step (:func:`fit_proposal`,
@@ -15,9 +16,18 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import expit, logit
 
 from ..stats.chains import ensemble_ess, integrated_time
+from .coordinates import (
+    _ASYMPTOTIC,
+    Coordinates,
+    depth_scale,
+    from_sampling,
+    log_jacobian,
+    ring_scale,
+    sampling_jacobian,
+    to_sampling,
+)
 from .ensemble import spd_covariance, spread_walkers
 
 #: leapfrog steps per HMC move (tuning and production runs)
@@ -74,147 +84,6 @@ __all__ = ["ring_scale", "depth_scale", "Coordinates", "log_jacobian", "to_sampl
            "from_sampling", "sampling_jacobian", "CollapsedTarget", "fit_proposal", "tune_proposal",
            "seeded_sampler", "run_until_converged", "imh_df", "default_walkers",
            "min_walkers", "de_move"]
-
-
-def ring_scale(theta, rho_ref=np.inf):
-    """The laser ring's pixel radius per unit gamma, seen at horizontal range ``rho_ref``.
-
-    A laser point at horizontal range ``rho`` sits at elevation ``e`` with
-    ``tan(e) = cot(beta) - h / rho`` and images at ``gamma cos(e) / (xi - sin(e))`` px
-    from the principal point. The data pin this radius at the points' ranges, not
-    gamma, xi and beta one by one, so the sampler works with ``R_u = gamma_u *
-    ring_scale`` and ``R_v = gamma_v * ring_scale`` in place of ``gamma_u``,
-    ``gamma_v``. ``rho_ref = inf`` gives the asymptotic ring,
-    ``sin(beta) / (xi - cos(beta))`` (independent of h); a finite ``rho_ref`` (the
-    points' median range) removes most of the ridge's curvature in small rooms
-    (``docs/bayes.md`` section 3).
-    """
-    xi, h, beta = theta[..., 0], theta[..., 5], theta[..., 6]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if np.isinf(rho_ref):
-            se, ce = np.cos(beta), np.sin(beta)
-        else:
-            te = 1.0 / np.tan(beta) - h / rho_ref
-            ce = 1.0 / np.sqrt(1.0 + te * te)
-            se = te * ce
-        return np.where(xi - se > 0, ce / (xi - se), np.nan)
-
-
-def depth_scale(theta):
-    """``(1 - xi cos(beta)) sin(beta) / (xi - cos(beta))``: the ring radius' sensitivity to
-    ``h / rho``.
-
-    A point at horizontal range ``rho`` images at radius
-    ``gamma * ring_scale * (1 - depth_scale * h / rho + ...)`` (asymptotic ring):
-    after the ring radius, the data pin ``h * depth_scale``, a curved ridge in
-    ``(xi, h, beta)``; the sampler uses it in place of ``h``. It depends on xi and
-    beta only, so the change of coordinates stays triangular.
-    """
-    xi, beta = theta[..., 0], theta[..., 6]
-    return (1.0 - xi * np.cos(beta)) * ring_scale(theta)
-
-
-class Coordinates:
-    """The sampler's coordinates ``s`` of the globals ``psi``.
-
-    ``(gamma_u, gamma_v)`` are replaced by the ring radii ``R = gamma *
-    ring_scale(theta, rho_ref)`` and ``h`` by ``H = h * depth_scale`` (``docs/bayes.md``
-    section 3). The map is triangular (H from (xi, beta, h), then R from gamma and
-    (xi, beta, h)), so its inverse and Jacobian are closed-form.
-
-    Parameters
-    ----------
-    rho_ref : float, optional
-        Horizontal range (mm) at which the ring radius is taken: the median range
-        of the MAP's points; ``inf`` (default) is the asymptotic ring.
-    frac_index : int, optional
-        Index in psi of ``logit w``, the outlier fraction, if sampled. It is sampled
-        as ``w^(1/3)``: with few or no outliers the posterior of w is close to a
-        Gamma with shape ~1, whose cube root is nearly normal (Wilson-Hilferty),
-        while ``logit w = log w + ...`` is skewed (skewness ~ -1.1) with an
-        exponential left tail, which a fitted independence proposal matches badly
-        (``docs/bayes.md`` section 3).
-    """
-
-    def __init__(self, rho_ref=np.inf, frac_index=None):
-        rho_ref = float(np.inf if rho_ref is None else rho_ref)
-        if not rho_ref > 0:
-            raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
-        self.rho_ref = rho_ref
-        self.frac_index = None if frac_index is None else int(frac_index)
-
-    def __repr__(self):
-        return f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index})"
-
-    def to_sampling(self, psi):
-        """psi (..., d) -> s (..., d)."""
-        s = np.array(psi, dtype=float)
-        k = ring_scale(s, self.rho_ref)
-        s[..., 1] *= k
-        s[..., 2] *= k
-        s[..., 5] *= depth_scale(s)
-        if self.frac_index is not None:
-            s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
-        return s
-
-    def from_sampling(self, s):
-        """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
-        psi = np.array(s, dtype=float)
-        psi[..., 5] /= depth_scale(psi)
-        k = ring_scale(psi, self.rho_ref)
-        psi[..., 1] /= k
-        psi[..., 2] /= k
-        if self.frac_index is not None:
-            y = psi[..., self.frac_index]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
-        return psi
-
-    def log_jacobian(self, psi):
-        """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = (-2.0 * np.log(ring_scale(psi, self.rho_ref))
-                   - np.log(np.abs(depth_scale(psi))))
-            if self.frac_index is not None:
-                # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
-                y = np.cbrt(expit(psi[..., self.frac_index]))
-                out = out + np.log(3.0) - np.log(y) - np.log1p(-y**3)
-        return out
-
-    def jacobian(self, psi, eps=1e-7):
-        """``d s / d psi`` at one psi (d,) by central differences, shape (d, d)."""
-        psi = np.asarray(psi, float)
-        d = len(psi)
-        J = np.empty((d, d))
-        for k in range(d):
-            h = eps * max(1.0, abs(psi[k]))
-            e = np.zeros(d)
-            e[k] = h
-            J[:, k] = (self.to_sampling(psi + e) - self.to_sampling(psi - e)) / (2 * h)
-        return J
-
-
-_ASYMPTOTIC = Coordinates()
-
-
-def to_sampling(psi):
-    """:meth:`Coordinates.to_sampling` with the asymptotic ring (``rho_ref = inf``)."""
-    return _ASYMPTOTIC.to_sampling(psi)
-
-
-def from_sampling(s):
-    """Inverse of :func:`to_sampling`."""
-    return _ASYMPTOTIC.from_sampling(s)
-
-
-def log_jacobian(psi):
-    """``log |d psi / d s|`` of :func:`from_sampling` at psi (..., d)."""
-    return _ASYMPTOTIC.log_jacobian(psi)
-
-
-def sampling_jacobian(psi, eps=1e-7):
-    """``d to_sampling / d psi`` at one psi (d,) by central differences, shape (d, d)."""
-    return _ASYMPTOTIC.jacobian(psi, eps)
 
 
 class CollapsedTarget:

@@ -4,7 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
-from helpers import gross_plan_pixels
+from helpers import check_seed_scatter, gross_plan_pixels
 
 import bayescal as bc
 from bayescal.scene.floorplan import FloorPlan
@@ -120,8 +120,6 @@ def test_floor_plan_ess_matches_the_scatter_over_seeds():
     21 squared ratios within the 99 % band of chi2_9 / 9 (the coordinates share chains,
     so this is the fully correlated, widest null; an ESS optimistic by 2x on every
     coordinate puts it near 4, beyond 2.6). False-failure rate <= ~1.1 %."""
-    from scipy import stats
-
     ds = bc.simulate_room(range_mm=1000.0, n_points=300, sigma_px=0.5, approx_error=0.05,
                           approx_model="wall", rng=21)
     means, errs = [], []
@@ -134,13 +132,7 @@ def test_floor_plan_ess_matches_the_scatter_over_seeds():
         ess = post.ess[:7 + walls.shape[1]]
         means.append(x.mean(axis=0))
         errs.append(x.std(axis=0) / np.sqrt(ess))
-    ratio = np.std(means, axis=0, ddof=1) / np.sqrt(np.mean(np.square(errs), axis=0))
-    print(np.round(ratio, 2))
-    p = 1e-3 / 21 / 2
-    lo, hi = np.sqrt(stats.chi2(9).ppf([p, 1 - p]) / 9)
-    assert np.all((ratio > lo) & (ratio < hi)), ratio
-    pooled = np.mean(ratio**2)
-    assert stats.chi2(9).ppf(0.005) / 9 < pooled < stats.chi2(9).ppf(0.995) / 9, pooled
+    check_seed_scatter(means, errs)
 
 
 def _moved_pixel(n_points, i, rng):

@@ -262,6 +262,48 @@ def test_finite_range_ring_radius_is_the_pixel_radius_at_that_range():
     assert ring_scale(th, 1e12) == pytest.approx(ring_scale(th), rel=1e-8)
 
 
+def test_pose_coordinates_round_trip_and_unit_jacobian():
+    from bayescal.mcmc.coordinates import Coordinates
+
+    c = Coordinates(2000.0, 12, pose=True)
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    psi = np.r_[th, 0.02, -0.01, 4.0, -3.0, np.log(0.3), -3.0]
+    s = c.to_sampling(psi)
+    np.testing.assert_allclose(c.from_sampling(s), psi, rtol=1e-12)
+    plain = Coordinates(2000.0, 12)
+    assert not np.allclose(s[3:5], plain.to_sampling(psi)[3:5])      # u0, v0 moved
+    np.testing.assert_array_equal(np.delete(s, [3, 4]), np.delete(plain.to_sampling(psi), [3, 4]))
+    J = c.jacobian(psi)
+    np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+    with pytest.raises(ValueError, match="finite rho_ref"):
+        Coordinates(np.inf, pose=True)
+
+
+def test_pose_shift_is_the_laser_rings_mean_pixel_shift():
+    """k . pose is the mean pixel displacement of a ring of laser points at range rho_ref
+    (their (x, y) held, z from the tilted cone), checked with the camera model."""
+    from bayescal.mcmc.coordinates import POSE_RING, pose_shift
+    from bayescal.sensor.camera import project_theta
+    from bayescal.sensor.laser import cone_height
+
+    th = bc.SensorParams.paper().to_identifiable()
+    rho = 1500.0
+    x, y = rho * np.cos(POSE_RING), rho * np.sin(POSE_RING)
+
+    def mean_pixel(pose):
+        g = np.r_[th, pose]
+        z = cone_height(g, x, y)[0]
+        return project_theta(th, np.stack([x, y, z], axis=-1))[0].mean(axis=0)
+
+    k = pose_shift(np.r_[th, np.zeros(4)], rho)
+    for j, step in enumerate((1e-6, 1e-6, 1e-4, 1e-4)):
+        e = np.zeros(4)
+        e[j] = step
+        num = (mean_pixel(e) - mean_pixel(-e)) / (2 * step)
+        np.testing.assert_allclose(k[:, j], num, rtol=1e-5, atol=1e-6 * np.abs(k).max())
+    assert abs(k[0, 1]) > 10 and abs(k[1, 0]) > 10       # px per rad: tilts move the ring
+
+
 def test_coordinates_reject_a_bad_range():
     from bayescal.mcmc.steps import Coordinates
 

@@ -1,0 +1,209 @@
+"""The collapsed sampler's coordinates ``s`` of the globals ``psi``.
+
+The data pin combinations of the sensor's parameters, not the parameters one by one;
+the sampler works in coordinates where those combinations are single coordinates
+(``docs/bayes.md`` section 3): the laser ring's pixel radii (:func:`ring_scale`) in place
+of ``gamma_u``, ``gamma_v``, ``H = h * depth_scale`` in place of ``h``, ``w^(1/3)`` for
+the outlier fraction and, with a misaligned cone, the *apparent* principal point
+(:func:`pose_shift`) in place of ``u0``, ``v0``. Each map is triangular, so its inverse
+and Jacobian are closed-form.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import expit, logit
+
+from ..sensor.laser import cone_height
+
+__all__ = ["ring_scale", "depth_scale", "pose_shift", "Coordinates", "log_jacobian",
+           "to_sampling", "from_sampling", "sampling_jacobian"]
+
+
+def ring_scale(theta, rho_ref=np.inf):
+    """The laser ring's pixel radius per unit gamma, seen at horizontal range ``rho_ref``.
+
+    A laser point at horizontal range ``rho`` sits at elevation ``e`` with
+    ``tan(e) = cot(beta) - h / rho`` and images at ``gamma cos(e) / (xi - sin(e))`` px
+    from the principal point. The data pin this radius at the points' ranges, not
+    gamma, xi and beta one by one, so the sampler works with ``R_u = gamma_u *
+    ring_scale`` and ``R_v = gamma_v * ring_scale`` in place of ``gamma_u``,
+    ``gamma_v``. ``rho_ref = inf`` gives the asymptotic ring,
+    ``sin(beta) / (xi - cos(beta))`` (independent of h); a finite ``rho_ref`` (the
+    points' median range) removes most of the ridge's curvature in small rooms
+    (``docs/bayes.md`` section 3).
+    """
+    xi, h, beta = theta[..., 0], theta[..., 5], theta[..., 6]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if np.isinf(rho_ref):
+            se, ce = np.cos(beta), np.sin(beta)
+        else:
+            te = 1.0 / np.tan(beta) - h / rho_ref
+            ce = 1.0 / np.sqrt(1.0 + te * te)
+            se = te * ce
+        return np.where(xi - se > 0, ce / (xi - se), np.nan)
+
+
+def depth_scale(theta):
+    """``(1 - xi cos(beta)) sin(beta) / (xi - cos(beta))``: the ring radius' sensitivity to
+    ``h / rho``.
+
+    A point at horizontal range ``rho`` images at radius
+    ``gamma * ring_scale * (1 - depth_scale * h / rho + ...)`` (asymptotic ring):
+    after the ring radius, the data pin ``h * depth_scale``, a curved ridge in
+    ``(xi, h, beta)``; the sampler uses it in place of ``h``. It depends on xi and
+    beta only, so the change of coordinates stays triangular.
+    """
+    xi, beta = theta[..., 0], theta[..., 6]
+    return (1.0 - xi * np.cos(beta)) * ring_scale(theta)
+
+
+#: azimuths of the reference ring on which :func:`pose_shift` is averaged, rad
+POSE_RING = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+
+
+def pose_shift(theta, rho_ref):
+    """The apparent principal point's shift per unit of the laser pose, (..., 2, 4).
+
+    A tilt or an offset of the laser cone raises or lowers the laser points by a first
+    harmonic of their azimuth; in the image that moves the laser ring by a first harmonic
+    of its radius, which to first order is a shift of the whole ring, what ``(u0, v0)`` do
+    too. What the data pin is the *apparent* principal point ``(u0, v0) + k . pose``, and
+    ``k`` depends on ``xi``, ``gamma``, ``h`` and ``beta``: along the pose, the posterior
+    of ``(u0, v0)`` bends with them (``docs/floorplan.md`` section 13). ``k`` is the mean
+    over a ring of laser points at horizontal range ``rho_ref`` on the aligned cone of
+    ``theta`` of ``d(u, v)/dz dz/d pose`` (rows u, v; columns tilt_x, tilt_y, offset_x,
+    offset_y). It reads only ``xi``, ``gamma``, ``h`` and ``beta``, so the map stays
+    triangular with a unit Jacobian.
+    """
+    th = np.array(theta[..., :11], dtype=float)
+    th[..., 7:11] = 0.0
+    x, y = rho_ref * np.cos(POSE_RING), rho_ref * np.sin(POSE_RING)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z, _, _, dz = cone_height(th, x, y, geometry=True)
+        xi, gu, gv = (th[..., k, None] for k in range(3))
+        r = np.sqrt(x * x + y * y + z * z)
+        D = xi * r - z
+        du_dz = -(xi * z / r - 1.0) / (D * D)        # d(x / D)/dz, times gamma x below
+        ku = np.stack([np.mean(gu * x * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
+        kv = np.stack([np.mean(gv * y * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
+    return np.stack([ku, kv], axis=-2)
+
+
+class Coordinates:
+    """The sampler's coordinates ``s`` of the globals ``psi``.
+
+    ``(gamma_u, gamma_v)`` are replaced by the ring radii ``R = gamma *
+    ring_scale(theta, rho_ref)`` and ``h`` by ``H = h * depth_scale`` (``docs/bayes.md``
+    section 3). The map is triangular (H from (xi, beta, h), then R from gamma and
+    (xi, beta, h)), so its inverse and Jacobian are closed-form.
+
+    Parameters
+    ----------
+    rho_ref : float, optional
+        Horizontal range (mm) at which the ring radius is taken: the median range
+        of the MAP's points; ``inf`` (default) is the asymptotic ring.
+    frac_index : int, optional
+        Index in psi of ``logit w``, the outlier fraction, if sampled. It is sampled
+        as ``w^(1/3)``: with few or no outliers the posterior of w is close to a
+        Gamma with shape ~1, whose cube root is nearly normal (Wilson-Hilferty),
+        while ``logit w = log w + ...`` is skewed (skewness ~ -1.1) with an
+        exponential left tail, which a fitted independence proposal matches badly
+        (``docs/bayes.md`` section 3).
+    pose : bool
+        psi carries the laser pose at 7:11 (misaligned model): ``(u0, v0)`` are
+        sampled as the apparent principal point ``(u0, v0) + pose_shift . pose``
+        (:func:`pose_shift`; needs a finite ``rho_ref``).
+    """
+
+    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False):
+        rho_ref = float(np.inf if rho_ref is None else rho_ref)
+        if not rho_ref > 0:
+            raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
+        if pose and np.isinf(rho_ref):
+            raise ValueError("the pose's coordinates need a finite rho_ref (the points' range)")
+        self.rho_ref = rho_ref
+        self.frac_index = None if frac_index is None else int(frac_index)
+        self.pose = bool(pose)
+
+    def __repr__(self):
+        return (f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index}, "
+                f"pose={self.pose})")
+
+    def _shift(self, psi):
+        """``pose_shift . pose`` (..., 2) of psi (its xi, gamma, h, beta and pose)."""
+        return np.einsum("...ij,...j->...i", pose_shift(psi, self.rho_ref), psi[..., 7:11])
+
+    def to_sampling(self, psi):
+        """psi (..., d) -> s (..., d)."""
+        s = np.array(psi, dtype=float)
+        if self.pose:
+            s[..., 3:5] += self._shift(s)
+        k = ring_scale(s, self.rho_ref)
+        s[..., 1] *= k
+        s[..., 2] *= k
+        s[..., 5] *= depth_scale(s)
+        if self.frac_index is not None:
+            s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
+        return s
+
+    def from_sampling(self, s):
+        """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
+        psi = np.array(s, dtype=float)
+        psi[..., 5] /= depth_scale(psi)
+        k = ring_scale(psi, self.rho_ref)
+        psi[..., 1] /= k
+        psi[..., 2] /= k
+        if self.pose:
+            psi[..., 3:5] -= self._shift(psi)
+        if self.frac_index is not None:
+            y = psi[..., self.frac_index]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
+        return psi
+
+    def log_jacobian(self, psi):
+        """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = (-2.0 * np.log(ring_scale(psi, self.rho_ref))
+                   - np.log(np.abs(depth_scale(psi))))
+            if self.frac_index is not None:
+                # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
+                y = np.cbrt(expit(psi[..., self.frac_index]))
+                out = out + np.log(3.0) - np.log(y) - np.log1p(-y**3)
+        return out
+
+    def jacobian(self, psi, eps=1e-7):
+        """``d s / d psi`` at one psi (d,) by central differences, shape (d, d)."""
+        psi = np.asarray(psi, float)
+        d = len(psi)
+        J = np.empty((d, d))
+        for k in range(d):
+            h = eps * max(1.0, abs(psi[k]))
+            e = np.zeros(d)
+            e[k] = h
+            J[:, k] = (self.to_sampling(psi + e) - self.to_sampling(psi - e)) / (2 * h)
+        return J
+
+
+_ASYMPTOTIC = Coordinates()
+
+
+def to_sampling(psi):
+    """:meth:`Coordinates.to_sampling` with the asymptotic ring (``rho_ref = inf``)."""
+    return _ASYMPTOTIC.to_sampling(psi)
+
+
+def from_sampling(s):
+    """Inverse of :func:`to_sampling`."""
+    return _ASYMPTOTIC.from_sampling(s)
+
+
+def log_jacobian(psi):
+    """``log |d psi / d s|`` of :func:`from_sampling` at psi (..., d)."""
+    return _ASYMPTOTIC.log_jacobian(psi)
+
+
+def sampling_jacobian(psi, eps=1e-7):
+    """``d to_sampling / d psi`` at one psi (d,) by central differences, shape (d, d)."""
+    return _ASYMPTOTIC.jacobian(psi, eps)
