@@ -279,4 +279,21 @@ def misaligned_rows(*, quick=False):
                  f"{TILT_DEG} deg, offset {OFFSET_MM} mm", runs[1], base[1] / runs[1],
                  f"target <= 10 s per 1000 ESS; median wall {runs[0]:.1f} s; "
                  + _facts_text(runs[2])))
-    return rows
+    return rows + misaligned_plan_rows(seeds)
+
+
+def misaligned_plan_rows(seeds):
+    """The misaligned model on a floor plan (300 points, 2500 mm, 6 walls, 3 % plan, the
+    tilted sensor), beside the aligned model on the same data (which converges but puts
+    v0 tens of sds off on a tilted sensor: docs/floorplan.md section 13)."""
+    ds = bc.simulate_room(range_mm=2500, n_points=300, n_walls=6, sigma_px=0.2,
+                          approx_error=0.03, approx_model="wall",
+                          tilt=tuple(np.radians(TILT_DEG)), offset=OFFSET_MM, rng=0)
+    base = _collapsed_runs(ds, ds.floor_plan, seeds)
+    mis = _collapsed_runs(ds, ds.floor_plan, seeds, model="misaligned")
+    where = f"floor plan 3 %, N=300, 2500 mm, sensor tilted {TILT_DEG} deg, offset {OFFSET_MM} mm"
+    return [(MISALIGNED, f"aligned model, {where}", base[1], 1.0,
+             f"baseline (biased on this sensor); median wall {base[0]:.1f} s; "
+             + _facts_text(base[2])),
+            (MISALIGNED, "misaligned model, same plan data", mis[1], base[1] / mis[1],
+             f"HMC on the plan gradient; median wall {mis[0]:.1f} s; " + _facts_text(mis[2]))]

@@ -355,7 +355,8 @@ def _fmt_seconds(s):
 
 
 def _row_line(r):
-    ratio = f"{r.ratio:.1f}x" if np.isfinite(r.ratio) else "-"
+    ratio = "-" if not np.isfinite(r.ratio) else (
+        f"{r.ratio:.1f}x" if r.ratio >= 0.1 else f"{r.ratio:.2g}x")      # 0.038x, not 0.0x
     return f"| {r.name} | {r.setting} | {_fmt_seconds(r.seconds)} | {ratio} | {r.notes} |"
 
 
