@@ -45,6 +45,8 @@ def test_misaligned_plan_posterior_samples_the_pose(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: the ESS is 3-4x optimistic on the sensor's "
+                   "parameters (seed-scatter ratios 1.5-2.3; docs/floorplan.md section 13)")
 def test_misaligned_plan_posterior_converges_with_an_honest_ess():
     """The misaligned plan posterior (HMC on the plan gradient, the apparent principal point
     as a coordinate) converges, and its ESS is honest: one room (2500 mm, 6 walls, 150

@@ -33,14 +33,15 @@ def _sensor(rng):
     return tuple(tilt), tuple(off), tuple(rng.normal(0.0, 5.0, 2))
 
 
-def _z_scores(seed, *, posterior):
+def _z_scores(seed, *, posterior, plan=False):
     rng = np.random.default_rng(seed)
     tilt, off, off_prior = _sensor(rng)
     sensor = bc.SensorParams.from_array(bc.Prior().sample(rng=rng))
     out = []
     for offset in (off, off_prior):
         ds = bc.simulate_room(sensor, range_mm=2500, n_points=300, n_walls=6,
-                              sigma_px=0.2, approx_error=0.03, approx_model="fig9", rng=rng,
+                              sigma_px=0.2, approx_error=0.03,
+                              approx_model="wall" if plan else "fig9", rng=rng,
                               tilt=tilt, offset=offset)
         truth = np.r_[ds.params.to_identifiable(), ds.laser.to_array()]
         if posterior:
@@ -50,8 +51,10 @@ def _z_scores(seed, *, posterior):
             lo, hi = post.intervals(0.9, identifiable=True).T
             out.append((lo <= truth) & (truth <= hi))
         else:
-            res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
-                                            sigma_scene=ds.sigma_scene, model="misaligned")
+            res = (bc.calibrate_simultaneous(ds.pixels, ds.floor_plan, sigma_px=0.2,
+                                             model="misaligned") if plan else
+                   bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                             sigma_scene=ds.sigma_scene, model="misaligned"))
             sd = np.sqrt(np.diag(res.covariance(identifiable=True)))
             out.append(np.abs(res.geometry() - truth) <= Z90 * sd)
     # the 7 identifiable parameters and the tilts from the 0-10 mm sensor, the offsets from
@@ -78,3 +81,13 @@ def test_posterior_coverage_on_misaligned_sensors():
     names = bc.IDENTIFIABLE_NAMES + bc.POSE_NAMES
     hits = np.array([_z_scores(1000 + s, posterior=True) for s in range(40)])
     _check(hits, names)
+
+
+def test_least_squares_coverage_on_misaligned_sensors_with_a_floor_plan():
+    """The same sensors, the points on the walls of a rough plan (each wall's distance and
+    orientation off by one draw of its 3 % and 0.01 rad sds) in place of approximate
+    points; 200 sensors."""
+    names = bc.IDENTIFIABLE_NAMES + bc.POSE_NAMES
+    hits = np.array([_z_scores(2000 + s, posterior=False, plan=True) for s in range(200)])
+    _check(hits, names)
+
