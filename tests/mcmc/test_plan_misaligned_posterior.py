@@ -27,6 +27,7 @@ def test_misaligned_plan_posterior_samples_the_pose(tmp_path):
     assert post.laser_samples.shape == (300, 4)
     assert post.wall_samples.shape == (300, 6, 2) and post.point_samples.shape == (300, 80, 3)
     assert post.map_result.model == "misaligned"
+    assert "ESS was measured 3-4x optimistic" in post.summary_text()
     ls = post.laser_samples
     z = (ls.mean(axis=0) - TRUE_POSE) / ls.std(axis=0)
     assert np.all(np.abs(z) < 4), z
