@@ -40,3 +40,33 @@ def check_seed_scatter(means, errs):
     band = stats.chi2(m - 1).ppf([0.005, 0.995]) / (m - 1)
     assert band[0] < pooled < band[1], pooled
     return ratio
+
+
+def check_plan_residual_jacobians(lik, g, walls, t, sigma, numdiff, *, rows, dt_tol):
+    """The floor-plan least squares' Jacobians (azimuth, geometry ``g``, walls at points
+    ``rows``) against central differences, and the sampler's elementwise hot path
+    (``_pixel_terms``: pixels and ``d(u, v)/dt``) against them; ``dt_tol`` the tolerances
+    of that last comparison. Returns the geometry Jacobian."""
+    k = lik.hard_wall_index(walls, t)
+    R, Jg, Jw, Jt = lik.residuals(g, walls, t, k, sigma, jacobian=True)
+    i = np.arange(lik.n)
+    num_t = np.stack([numdiff(lambda x, j=j: lik.residuals(g, walls, np.where(i == j, x[0], t),
+                                                           k, sigma)[j], [t[j]], 1e-7)[:, 0]
+                      for j in range(lik.n)])
+    np.testing.assert_allclose(Jt, num_t, rtol=1e-5, atol=1e-6)
+    num_g = numdiff(lambda x: lik.residuals(x, walls, t, k, sigma), g,
+                    1e-6 * np.maximum(1, np.abs(g)))
+    np.testing.assert_allclose(Jg, num_g, rtol=1e-5, atol=1e-5)
+    for j in rows:
+        def f(x, j=j):
+            w = walls.copy()
+            w[k[j]] = x
+            return lik.residuals(g, w, t, k, sigma)[j]
+        np.testing.assert_allclose(Jw[j], numdiff(f, walls[k[j]], [1e-4, 1e-7]),
+                                   rtol=1e-5, atol=1e-6)
+    d, a = walls[k, 0], walls[k, 1]
+    u, v, du, dv = lik._pixel_terms(g[None], t[None], d[None], np.cos(a)[None],
+                                    np.sin(a)[None])
+    np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * sigma + lik.pixels, rtol=1e-12)
+    np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * sigma, **dt_tol)
+    return Jg

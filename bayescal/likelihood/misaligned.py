@@ -36,9 +36,13 @@ N_GEO_MISALIGNED = 11
 class PoseGlobals:
     """The laser pose as the first four extra globals (mixin of the misaligned likelihoods).
 
-    Put before the aligned likelihood in the bases; takes ``prior`` (a
-    :class:`~bayescal.likelihood.priors.Prior` or a dict), whose ``pose_dists`` give the
-    pose's prior, and passes everything else on.
+    Put before the aligned likelihood in the bases; passes everything but ``prior`` on.
+
+    Parameters
+    ----------
+    prior : Prior or dict, optional
+        Where the pose's prior is read (``Prior.pose_dists``; default zero +- 2 deg
+        tilt and 5 mm offset, :func:`~bayescal.likelihood.priors.default_pose_prior`).
     """
 
     n_geo = N_GEO_MISALIGNED
@@ -62,13 +66,8 @@ class PoseGlobals:
 class MisalignedLikelihood(PoseGlobals, LaserLikelihood):
     """:class:`~bayescal.likelihood.points.LaserLikelihood` on a tilted and offset cone.
 
-    Parameters are those of the aligned likelihood, plus:
-
-    Parameters
-    ----------
-    prior : Prior or dict, optional
-        Where the pose's prior is read (``Prior.pose_dists``; default zero +- 2 deg
-        tilt and 5 mm offset, :func:`~bayescal.likelihood.priors.default_pose_prior`).
+    Parameters are those of the aligned likelihood, plus ``prior``, where the pose's prior
+    is read (:class:`PoseGlobals`).
 
     Notes
     -----

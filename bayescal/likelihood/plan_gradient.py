@@ -62,15 +62,11 @@ class PlanGradient:
         total = per_point.sum(axis=-1)
         value = np.where(np.isfinite(total), total, -np.inf)
         grad = np.zeros(psi.shape)
-        weights = self._piece_weights(psi, pieces, r)
-        theta, walls, _ = self.split(psi)
+        theta, walls, sig = self.split(psi)
+        weights = self._piece_weights(pieces, r, (1.0 / sig**2)[..., None])
         k = self.n_geo + 2 * self.n_walls
         for p in (0, 1):
-            # the points whose piece p is computed (all, or after restrict_pieces those on
-            # wall p and those near a corner)
-            sel = (np.arange(self.n) if self.primary is None
-                   else np.flatnonzero((self.primary == p) | np.isin(np.arange(self.n),
-                                                                     self.near)))
+            sel = self._piece_points(p)
             wt = weights[p][..., sel]
             rr, rj_geo, rj_wall = self._piece_jacobian(theta, walls, pieces[1][p][..., sel],
                                                        p, sel)
@@ -90,13 +86,20 @@ class PlanGradient:
             grad[..., -1] = np.sum(r - expit(self.logit_frac(psi))[..., None], axis=-1)
         return value, np.where(np.isfinite(value)[..., None], grad, np.nan)
 
-    def _piece_weights(self, psi, pieces, r):
+    def _piece_points(self, p):
+        """The points whose piece ``p`` is computed: all, or after :meth:`restrict_pieces`
+        those whose primary wall it is and those near a corner."""
+        if self.primary is None:
+            return np.arange(self.n)
+        keep = self.primary == p
+        keep[self.near] = True
+        return np.flatnonzero(keep)
+
+    def _piece_weights(self, pieces, r, inv_s2):
         """Each piece's weight of ``-r^T dr/dg`` (..., N): its share of the point's inlier
-        mass, and with the mixture its share of the outlier's mass over ``c^2``, over
-        ``sigma^2``."""
+        mass, and with the mixture its share of the outlier's mass over ``c^2``, times
+        ``inv_s2 = 1 / sigma^2``."""
         logm, _, _, lo = pieces
-        sig = self.split(psi)[2]
-        inv_s2 = (1.0 / sig**2)[..., None]
         with np.errstate(invalid="ignore", over="ignore"):
             m = np.logaddexp(logm[0], logm[1])
             share = [np.exp(logm[p] - m) for p in (0, 1)]

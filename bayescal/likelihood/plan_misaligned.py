@@ -30,13 +30,8 @@ __all__ = ["MisalignedPlanLikelihood", "plan_likelihood"]
 class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     """:class:`~bayescal.likelihood.floorplan.PlanLikelihood` on a tilted and offset cone.
 
-    Parameters are those of the aligned likelihood, plus:
-
-    Parameters
-    ----------
-    prior : Prior or dict, optional
-        Where the pose's prior is read (``Prior.pose_dists``; default zero +- 2 deg
-        tilt and 5 mm offset, :func:`~bayescal.likelihood.priors.default_pose_prior`).
+    Parameters are those of the aligned likelihood, plus ``prior``, where the pose's prior
+    is read (:class:`~.misaligned.PoseGlobals`).
 
     Notes
     -----

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from helpers import gross_plan_pixels
+from helpers import check_plan_residual_jacobians, gross_plan_pixels
 from scipy import stats
 
 import bayescal as bc
@@ -33,29 +33,9 @@ def test_residual_jacobians(rng, numdiff):
     lik = PlanLikelihood(ds.pixels, plan, sigma_px=0.5)
     theta, walls = ds.params.to_identifiable(), plan.param_nominal.reshape(-1, 2)
     t = lik._start(theta[None])[0] + rng.normal(0, 0.01, lik.n)
-    k = lik.hard_wall_index(walls, t)
-    R, Jth, Jw, Jt = lik.residuals(theta, walls, t, k, 0.5, jacobian=True)
-    i = np.arange(lik.n)
-    num_t = np.stack([numdiff(lambda x, j=j: lik.residuals(theta, walls, np.where(i == j, x[0], t),
-                                                           k, 0.5)[j], [t[j]], 1e-7)[:, 0]
-                      for j in range(lik.n)])
-    np.testing.assert_allclose(Jt, num_t, rtol=1e-5, atol=1e-6)
-    num_th = numdiff(lambda x: lik.residuals(x, walls, t, k, 0.5), theta,
-                     1e-6 * np.maximum(1, np.abs(theta)))
-    np.testing.assert_allclose(Jth, num_th, rtol=1e-5, atol=1e-5)
-    for j in (0, 5):                              # points on two different walls
-        def f(x, j=j):
-            w = walls.copy()
-            w[k[j]] = x
-            return lik.residuals(theta, w, t, k, 0.5)[j]
-        np.testing.assert_allclose(Jw[j], numdiff(f, walls[k[j]], [1e-4, 1e-7]),
-                                   rtol=1e-5, atol=1e-6)
-    # the sampler's elementwise hot path agrees with the general residuals
-    d, a = walls[k, 0], walls[k, 1]
-    u, v, du, dv = lik._pixel_terms(theta[None], t[None], d[None], np.cos(a)[None],
-                                    np.sin(a)[None])
-    np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * 0.5 + ds.pixels, rtol=1e-12)
-    np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * 0.5, rtol=1e-10)
+    # points on two different walls; the sampler's elementwise hot path agrees with them
+    check_plan_residual_jacobians(lik, theta, walls, t, 0.5, numdiff, rows=(0, 5),
+                                  dt_tol=dict(rtol=1e-10))
 
 
 def test_corner_assignment_with_a_perturbed_plan(rng):
