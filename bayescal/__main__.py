@@ -1,7 +1,5 @@
 """``python -m bayescal`` runs the command line (see :mod:`bayescal.cli.main`)."""
 
-import sys
+from .cli.main import console_main
 
-from .cli.main import main
-
-sys.exit(main())
+console_main()

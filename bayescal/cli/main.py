@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import signal
 import sys
 import threading
@@ -35,7 +36,7 @@ from ..errors import (
 from ..io.outputs import MANIFEST
 from . import options as op
 
-__all__ = ["main", "build_parser", "UsageError", "Failure", "MANIFEST"]
+__all__ = ["main", "console_main", "build_parser", "UsageError", "Failure", "MANIFEST"]
 
 _DESCRIPTION = ("Probabilistic calibration of a catadioptric structured-light sensor: simulate, "
                 "calibrate, reconstruct, report, study, demo. Run 'bayescal COMMAND --help' "
@@ -134,8 +135,12 @@ def build_parser():
     return parser
 
 
-def _run(args):
-    """Build the job of ``args.command`` and run it in a staged output folder."""
+def _run(args, folders):
+    """Build the job of ``args.command`` and run it in a staged output folder.
+
+    The :class:`~bayescal.io.outputs.OutputFolder` is appended to ``folders``, so
+    that :func:`main` can tell an interrupt after the commit from one before.
+    """
     from ..io.outputs import OutputFolder
     from . import demo, jobs, runs
 
@@ -149,7 +154,8 @@ def _run(args):
            "reconstruct": runs.run_reconstruct, "report": runs.run_report,
            "study": demo.run_study, "demo": demo.run_demo}[args.command]
     job = build(**o)
-    with OutputFolder(job.out) as folder:
+    folders.append(OutputFolder(job.out))
+    with folders[-1] as folder:
         failed = run(job, folder)
     if isinstance(failed, tuple):
         failed = failed[0]
@@ -181,11 +187,11 @@ def main(argv=None):
     matplotlib.use("agg")              # files only, never a window
     stdout, stderr, show = sys.stdout, sys.stderr, warnings.showwarning
     warnings.showwarning = lambda msg, *a, **k: print(f"bayescal: warning: {msg}", file=stderr)
-    old = None
+    old, folders = None, []
     if threading.current_thread() is threading.main_thread():
         old = signal.signal(signal.SIGINT, _on_sigint)
     try:
-        return _run(args)
+        return _run(args, folders)
     except (UsageError, InputError) as exc:
         print(f"bayescal: error: {exc}", file=stderr)
         return EXIT_USAGE
@@ -194,7 +200,9 @@ def main(argv=None):
         return EXIT_FAILED
     except KeyboardInterrupt:
         sys.stdout.flush()
-        print("bayescal: interrupted; nothing was written", file=stderr)
+        done = [f.target for f in folders if f.committed]
+        print(f"bayescal: interrupted after {done[0]} was written in full" if done else
+              "bayescal: interrupted; nothing was written", file=stderr)
         return EXIT_INTERRUPTED
     except OSError as exc:
         where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
@@ -205,3 +213,28 @@ def main(argv=None):
         sys.stdout, sys.stderr, warnings.showwarning = stdout, stderr, show
         if old is not None:
             signal.signal(signal.SIGINT, old)
+
+
+def console_main():
+    """Entry point of the ``bayescal`` command and ``python -m bayescal``.
+
+    Runs :func:`main` and exits with its code. After a Ctrl-C, :func:`main` has
+    already removed the staged files and printed its line, so the process leaves
+    at once through :func:`os._exit` with 130: a plain ``sys.exit(130)`` can
+    turn into death by SIGINT (CPython marks an interrupt as unhandled when it
+    lands inside ``exec`` of a string, as SciPy's distributions run on import,
+    even though :func:`main` caught it), which a caller sees as -2, not 130.
+    Otherwise a Ctrl-C during the interpreter's shutdown is ignored: the job is
+    over and its files are complete.
+    """
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)

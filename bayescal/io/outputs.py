@@ -12,16 +12,23 @@ Rules (``docs/cli.md``, "Output folders"):
   temporary folder, so nothing is left behind. With ``force``, only the files
   listed in the previous manifest are replaced or deleted; a new file whose name
   collides with a file bayescal did not write is refused.
+* While the files move into place, Ctrl-C is held back (:func:`_sigint_held`):
+  a merge into an existing folder is never left half done. A Ctrl-C that came
+  during the move is reported as a warning; the files are then complete.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pathlib
 import shutil
+import signal
 import stat
 import tempfile
+import threading
+import warnings
 
 from ..errors import UsageError
 
@@ -123,6 +130,23 @@ class _SubFolder:
         self.add = root.add
 
 
+@contextlib.contextmanager
+def _sigint_held():
+    """Hold back SIGINT (Ctrl-C) inside the block; yields a list that records one.
+
+    Only the main thread can set a signal handler; elsewhere the block runs as is.
+    """
+    came = []
+    if threading.current_thread() is not threading.main_thread():
+        yield came
+        return
+    old = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield came
+    finally:
+        signal.signal(signal.SIGINT, old if old is not None else signal.default_int_handler)
+
+
 class OutputFolder:
     """Stage a job's files in a temporary folder; move them into ``out`` at the end.
 
@@ -142,10 +166,13 @@ class OutputFolder:
     target : pathlib.Path
     files : list of str
         Files recorded with :meth:`add`, relative to the folder.
+    committed : bool
+        True once every file is in place in ``target``.
     """
 
     def __init__(self, out):
         self.target = pathlib.Path(out)
+        self.committed = False
         self.path = None
         self.files = []
         self._created = []
@@ -209,20 +236,30 @@ class OutputFolder:
         os.replace(tmp, folder / MANIFEST)
 
     def commit(self):
-        """Move the staged files into the target folder (see the class docstring)."""
+        """Move the staged files into the target folder (see the class docstring).
+
+        Ctrl-C is held back until every file is in place, then reported as a
+        warning: the folder is complete, never half merged.
+        """
         target, stage = self.target, self.path
-        try:
-            if not target.exists():
-                self._write_manifest(stage)
-                os.rename(stage, target)
-            else:
-                self._merge_into(target, stage)
-                shutil.rmtree(stage, ignore_errors=True)
-        except BaseException:
-            self.discard()
-            raise
-        self.path = target
-        self._created = []
+        with _sigint_held() as came:
+            try:
+                if not target.exists():
+                    self._write_manifest(stage)
+                    os.rename(stage, target)
+                else:
+                    self._merge_into(target, stage)
+                    shutil.rmtree(stage, ignore_errors=True)
+            except BaseException:
+                self.discard()
+                raise
+            self.path = target
+            self._created = []
+            self.committed = True
+        if came:
+            warnings.warn(f"Ctrl-C came while the results moved into {target}; it was held "
+                          "back until they were all in place: the folder is complete",
+                          RuntimeWarning, stacklevel=2)
 
     def _merge_into(self, target, stage):
         old = _manifest_files(target) or []

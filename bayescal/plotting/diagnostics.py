@@ -87,7 +87,11 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
     truths = None if truths is None else [truths[i] for i in idx]
     kw = {"labels": [_label(n) for n in names], "show_titles": True, "title_fmt": ".4g",
           "quantiles": [0.05, 0.5, 0.95], "truths": truths, "truth_color": "tab:red",
-          "hist_kwargs": {"density": True}, "max_n_ticks": 3, "labelpad": 0.1}
+          "hist_kwargs": {"density": True}, "max_n_ticks": 3, "labelpad": 0.1,
+          # a pair on a ridge (alpha_u, alpha_v = -alpha_u) fills a handful of the 2-d bins,
+          # so two contour levels coincide: corner separates them and would say "Too few
+          # points to create valid contours" on the root logger (a stray line on stderr)
+          "quiet": True}
     kw.update(corner_kw)
     fig = corner.corner(x, **kw)
     axes = np.asarray(fig.axes).reshape(len(names), len(names))

@@ -70,7 +70,7 @@ def test_usage_errors_exit_2(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_console_script_entry_point_is_main():
+def test_console_script_entry_point_is_console_main():
     from importlib.metadata import PackageNotFoundError, distribution, entry_points
 
     try:
@@ -78,7 +78,7 @@ def test_console_script_entry_point_is_main():
     except PackageNotFoundError:
         pytest.skip("bayescal is not installed (run from a source tree): no entry points")
     eps = [e for e in entry_points(group="console_scripts") if e.name == "bayescal"]
-    assert [e.value for e in eps] == ["bayescal.cli.main:main"]
+    assert [e.value for e in eps] == ["bayescal.cli.main:console_main"]
 
 
 # -- simulate -------------------------------------------------------------------------
@@ -350,6 +350,15 @@ def bayes_run(sim):
     r = run("calibrate", sim / "laser.csv", "--method", "bayes", "--max-steps", 40,
             "--no-progress", "--truth", sim / "truth.json", "--out", "bayes", cwd=root)
     return root / "bayes", r
+
+
+def test_converged_bayes_run_prints_nothing_on_stderr(sim, tmp_path):
+    """A clean converged run says nothing on stderr: no stray library line (corner used to
+    log "Too few points to create valid contours" for the alpha_u, alpha_v ridge)."""
+    r = run("calibrate", sim / "laser.csv", "--method", "bayes", "--no-progress", "--out", "o",
+            cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "" and (tmp_path / "o" / "corner.png").exists()
 
 
 def test_bayes_unconverged_is_exit_1_with_outputs(bayes_run):
@@ -718,6 +727,46 @@ def test_sigint_during_sampling_exit_130_nothing_left(sim, tmp_path):
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == ["bayescal: interrupted; nothing was written"], err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_inside_exec_of_a_string_still_exits_130(tmp_path):
+    """CPython marks a KeyboardInterrupt raised inside ``exec(str)`` as unhandled even when
+    caught (SciPy's distributions are built so on import): ``python -m bayescal`` must still
+    leave with 130, not die by SIGINT (-2). Deterministic: the job interrupts itself there."""
+    pkg = tmp_path / "fakecli"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "__main__.py").write_text(
+        "import bayescal.cli.main as m\n"
+        "def job(args, folders):\n"
+        "    exec('import os, signal, time\\nos.kill(os.getpid(), signal.SIGINT)\\n"
+        "time.sleep(5)')\n"
+        "m._run = job\n"
+        "m.console_main()\n")
+    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
+    env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=os.pathsep.join([root, str(tmp_path)]))
+    r = subprocess.run([sys.executable, "-m", "fakecli", "simulate", "--out", "o"], cwd=tmp_path,
+                       capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 130, (r.returncode, r.stderr)
+    assert r.stderr.strip() == "bayescal: interrupted; nothing was written"
+
+
+def test_interrupt_after_the_commit_says_the_folder_is_complete(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C that lands after the files moved into place must not claim nothing was written."""
+    from bayescal.io.outputs import OutputFolder
+
+    monkeypatch.chdir(tmp_path)
+    commit = OutputFolder.commit
+
+    def commit_then_interrupt(self):
+        commit(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(OutputFolder, "commit", commit_then_interrupt)
+    rc, cap = _main(["simulate", "--out", "o", "--n-points", 10], capsys)
+    assert rc == 130
+    assert cap.err.strip() == "bayescal: interrupted after o was written in full"
+    assert (tmp_path / "o" / MANIFEST).exists()
 
 
 def test_force_never_replaces_a_file_bayescal_did_not_write(tmp_path, capsys, monkeypatch):
