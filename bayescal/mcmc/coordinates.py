@@ -16,7 +16,7 @@ from scipy.special import expit, logit
 
 from ..sensor.laser import cone_height
 
-__all__ = ["ring_scale", "depth_scale", "pose_shift", "Coordinates", "log_jacobian",
+__all__ = ["ring_scale", "depth_scale", "pose_shift", "wall_shift", "Coordinates", "log_jacobian",
            "to_sampling", "from_sampling", "sampling_jacobian"]
 
 
@@ -90,6 +90,28 @@ def pose_shift(theta, rho_ref):
     return np.stack([ku, kv], axis=-2)
 
 
+def wall_shift(theta, d, a):
+    """The walls' distance shift per unit of the laser pose that keeps their pixels, (..., W, 4).
+
+    A tilt or an offset raises the cone by ``dz`` over a wall; the laser point seen at a
+    given pixel then slides along its camera ray, and on the aligned cone
+    (``z = rho / tan(beta) - h``, camera ray ``z / rho = tan(e)``) its horizontal range
+    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel: the data pin
+    ``d - wall_shift . pose``, not the wall and the pose one by one, and the factor
+    depends on ``h`` and ``beta`` (a curved ridge; ``docs/floorplan.md`` section 13).
+    Evaluated at each wall's foot ``(d cos a, d sin a)`` (the plan's nominal ``d``, ``a``,
+    shape (W,)) on the aligned cone of ``theta``; it reads only ``h`` and ``beta``, so the
+    map stays triangular with a unit Jacobian.
+    """
+    th = np.array(theta[..., :11], dtype=float)
+    th[..., 7:11] = 0.0
+    d, a = np.asarray(d, float), np.asarray(a, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        _, _, _, dz = cone_height(th, d * np.cos(a), d * np.sin(a), geometry=True)
+        c = -d / th[..., 5, None]
+        return np.stack([c * g for g in dz[2:]], axis=-1)
+
+
 class Coordinates:
     """The sampler's coordinates ``s`` of the globals ``psi``.
 
@@ -114,9 +136,13 @@ class Coordinates:
         psi carries the laser pose at 7:11 (misaligned model): ``(u0, v0)`` are
         sampled as the apparent principal point ``(u0, v0) + pose_shift . pose``
         (:func:`pose_shift`; needs a finite ``rho_ref``).
+    walls : tuple of ndarray, optional
+        With ``pose`` on a floor plan: psi's indices of the walls' distances, and the
+        plan's nominal distances and normal azimuths, each (W,). Each distance is
+        sampled as ``d - wall_shift . pose`` (:func:`wall_shift`).
     """
 
-    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False):
+    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, walls=None):
         rho_ref = float(np.inf if rho_ref is None else rho_ref)
         if not rho_ref > 0:
             raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
@@ -125,18 +151,29 @@ class Coordinates:
         self.rho_ref = rho_ref
         self.frac_index = None if frac_index is None else int(frac_index)
         self.pose = bool(pose)
+        if walls is not None and not self.pose:
+            raise ValueError("the walls' coordinates need pose=True (they follow the pose)")
+        self.walls = None if walls is None else tuple(np.asarray(w) for w in walls)
 
     def __repr__(self):
+        walls = "" if self.walls is None else f", walls={len(self.walls[0])}"
         return (f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index}, "
-                f"pose={self.pose})")
+                f"pose={self.pose}{walls})")
 
     def _shift(self, psi):
         """``pose_shift . pose`` (..., 2) of psi (its xi, gamma, h, beta and pose)."""
         return np.einsum("...ij,...j->...i", pose_shift(psi, self.rho_ref), psi[..., 7:11])
 
+    def _wall_shift(self, psi):
+        """``wall_shift . pose`` (..., W) of psi (its h, beta and pose)."""
+        _, d, a = self.walls
+        return np.einsum("...ij,...j->...i", wall_shift(psi, d, a), psi[..., 7:11])
+
     def to_sampling(self, psi):
         """psi (..., d) -> s (..., d)."""
         s = np.array(psi, dtype=float)
+        if self.walls is not None:
+            s[..., self.walls[0]] -= self._wall_shift(s)
         if self.pose:
             s[..., 3:5] += self._shift(s)
         k = ring_scale(s, self.rho_ref)
@@ -156,6 +193,8 @@ class Coordinates:
         psi[..., 2] /= k
         if self.pose:
             psi[..., 3:5] -= self._shift(psi)
+        if self.walls is not None:
+            psi[..., self.walls[0]] += self._wall_shift(psi)
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):

@@ -34,12 +34,6 @@ from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
 
-#: what the summary of a misaligned floor-plan posterior says of its ESS (measured by the
-#: scatter over sampler seeds, ``docs/floorplan.md`` section 13)
-MISALIGNED_ESS_NOTE = ("misaligned cone on a floor plan: the reported ESS was measured 3-4x "
-                       "optimistic (seed scatter); the draws' intervals hold, their "
-                       "Monte-Carlo errors are larger than sd / sqrt(ESS)")
-
 #: default of ``sigma_scene`` in :func:`bayescal.sample_posterior`: required with
 #: approximate points, absent with a plan
 SCENE_REQUIRED = object()
@@ -118,8 +112,6 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter,
                            n_tune=n_tune)
-    if model == "misaligned":
-        run["diagnostics"].extra["ess_note"] = MISALIGNED_ESS_NOTE
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
     post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",

@@ -287,9 +287,6 @@ class Posterior:
         lines.append(f"chain: {self.n_walkers} walkers x {self.n_steps} steps, burn-in "
                      f"{self.burn}, max tau {np.max(self.tau):.1f}, min ESS {np.min(self.ess):.0f},"
                      f" acceptance {self.acceptance:.2f}: {status} (rule: {self._rule()})")
-        note = (getattr(self.diagnostics, "extra", None) or {}).get("ess_note")
-        if note:
-            lines.append(f"  note: {note}")
         lines.append(f"points: {self.point_samples.shape[1]} laser points, {self.n_samples} "
                      f"joint samples (IMH correction acceptance {self.imh_acceptance:.2f})")
         return "\n".join(lines)

@@ -304,6 +304,67 @@ def test_pose_shift_is_the_laser_rings_mean_pixel_shift():
     assert abs(k[0, 1]) > 10 and abs(k[1, 0]) > 10       # px per rad: tilts move the ring
 
 
+def test_wall_shift_keeps_the_laser_points_pixel():
+    """Moving a wall by wall_shift . pose keeps the pixel of the laser point at its foot
+    (to first order in the pose), checked with the camera model; not moving it does not."""
+    from bayescal.mcmc.coordinates import wall_shift
+    from bayescal.sensor.camera import project_theta
+    from bayescal.sensor.laser import cone_height
+
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    d, a = np.array([1800.0, 2600.0]), np.array([0.7, -2.1])
+    c = wall_shift(np.r_[th, np.zeros(4)], d, a)                     # (W, 4)
+
+    def pixels(pose, follow):
+        dist = d + (c @ pose if follow else 0.0)
+        x, y = dist * np.cos(a), dist * np.sin(a)
+        z = cone_height(np.r_[th, pose], x, y)[0]
+        return project_theta(th, np.stack([x, y, z], axis=-1))[0]
+
+    for j, step in enumerate((1e-5, 1e-5, 1e-2, 1e-2)):
+        e = np.zeros(4)
+        e[j] = step
+        kept = (pixels(e, True) - pixels(-e, True)) / (2 * step)
+        moved = (pixels(e, False) - pixels(-e, False)) / (2 * step)
+        assert np.max(np.abs(kept)) < 1e-3 * np.max(np.abs(moved)), (j, kept, moved)
+    assert np.all(np.abs(c[:, :2]) > 1e4)              # mm per rad: a tilt moves the walls
+
+
+def test_wall_coordinates_round_trip_and_unit_jacobian():
+    from bayescal.mcmc.coordinates import Coordinates, wall_shift
+
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    d, a = np.array([1800.0, 2600.0, 2100.0]), np.array([0.7, -2.1, 2.5])
+    walls = np.c_[d + [10.0, -20.0, 5.0], a + 0.01].ravel()
+    psi = np.r_[th, 0.02, -0.01, 4.0, -3.0, walls, -3.0]
+    c = Coordinates(2000.0, len(psi) - 1, pose=True, walls=(11 + 2 * np.arange(3), d, a))
+    s = c.to_sampling(psi)
+    np.testing.assert_allclose(c.from_sampling(s), psi, rtol=1e-12)
+    plain = Coordinates(2000.0, len(psi) - 1, pose=True).to_sampling(psi)
+    shift = wall_shift(psi, d, a) @ psi[7:11]
+    np.testing.assert_allclose(s[11:17:2], plain[11:17:2] - shift, rtol=1e-12)
+    np.testing.assert_array_equal(np.delete(s, [11, 13, 15]), np.delete(plain, [11, 13, 15]))
+    J = c.jacobian(psi)
+    np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+    with pytest.raises(ValueError, match="pose=True"):
+        Coordinates(2000.0, walls=(11 + 2 * np.arange(3), d, a))
+
+
+def test_misaligned_plan_likelihood_names_its_walls_distances():
+    """The indices the sampler's wall coordinates shift are the walls' distances in psi."""
+    from bayescal.likelihood.plan_misaligned import plan_likelihood
+
+    ds = bc.simulate_room(range_mm=2500, n_points=30, n_walls=6, sigma_px=0.2,
+                          approx_error=0.03, approx_model="wall", rng=0)
+    lik = plan_likelihood("misaligned", ds.pixels, ds.floor_plan, bc.Prior(), sigma_px=0.2)
+    idx, d, a = lik.wall_coordinates()
+    psi = np.r_[bc.SensorParams.paper().to_identifiable(), np.zeros(4),
+                ds.floor_plan.param_nominal + np.arange(12.0)]
+    walls = lik.split(psi)[1]
+    np.testing.assert_array_equal(psi[idx], walls[:, 0])
+    np.testing.assert_array_equal(np.c_[d, a], ds.floor_plan.param_nominal.reshape(-1, 2))
+
+
 def test_coordinates_reject_a_bad_range():
     from bayescal.mcmc.steps import Coordinates
 
