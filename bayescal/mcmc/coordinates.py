@@ -58,6 +58,13 @@ def depth_scale(theta):
     return (1.0 - xi * np.cos(beta)) * ring_scale(theta)
 
 
+def _aligned(theta):
+    """The geometry (..., 11) of ``theta`` with the pose set to zero (the aligned cone)."""
+    th = np.array(theta[..., :11], dtype=float)
+    th[..., 7:11] = 0.0
+    return th
+
+
 #: azimuths of the reference ring on which :func:`pose_shift` is averaged, rad
 POSE_RING = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
 
@@ -76,8 +83,7 @@ def pose_shift(theta, rho_ref):
     offset_y). It reads only ``xi``, ``gamma``, ``h`` and ``beta``, so the map stays
     triangular with a unit Jacobian.
     """
-    th = np.array(theta[..., :11], dtype=float)
-    th[..., 7:11] = 0.0
+    th = _aligned(theta)
     x, y = rho_ref * np.cos(POSE_RING), rho_ref * np.sin(POSE_RING)
     with np.errstate(divide="ignore", invalid="ignore"):
         z, _, _, dz = cone_height(th, x, y, geometry=True)
@@ -103,8 +109,7 @@ def wall_shift(theta, d, a):
     shape (W,)) on the aligned cone of ``theta``; it reads only ``h`` and ``beta``, so the
     map stays triangular with a unit Jacobian.
     """
-    th = np.array(theta[..., :11], dtype=float)
-    th[..., 7:11] = 0.0
+    th = _aligned(theta)
     d, a = np.asarray(d, float), np.asarray(a, float)
     with np.errstate(divide="ignore", invalid="ignore"):
         _, _, _, dz = cone_height(th, d * np.cos(a), d * np.sin(a), geometry=True)
