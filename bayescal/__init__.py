@@ -16,6 +16,7 @@ from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
+from .image.views import BoardView, board_points
 from .likelihood.priors import Prior, default_pose_prior, default_prior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.calibration import (
@@ -92,4 +93,6 @@ __all__ = [
     "extract_laser",
     "read_image",
     "LaserPixels",
+    "BoardView",
+    "board_points",
 ]
