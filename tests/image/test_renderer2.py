@@ -95,9 +95,10 @@ def test_colour_image_carries_the_laser_in_one_channel():
     assert abs(rise[1]) < 0.15 * rise[0] and abs(rise[2]) < 0.15 * rise[0]
 
 
-def test_no_ring_scene_and_its_score():
-    im, bg, tr = render_scenario("no_ring", rng=15, background=False)
+def test_no_ring_scene_in_12_bits_and_its_score():
+    im, bg, tr = render_scenario("no_ring", rng=15, background=False, noise=dict(bits=12))
     assert bg is None and not tr.ring and not tr.visible.any()
+    assert im.dtype == np.uint16 and im.max() == 4095     # 12 bits; the lamps saturate
     s = score_extraction(np.array([[480.0, 300.0], [400.0, 390.0]]), tr)
     assert s["gross"] == 1.0 and np.isnan(s["bias"])
 
@@ -109,16 +110,19 @@ def test_score_measures_shift_spread_gross_and_coverage(clean):
     pix = tr.pixels + shift * tr.normal
     half = pix[: n // 2].copy()
     half[::10] += 3.0 * tr.normal[: n // 2][::10]          # 36 gross points
-    s = score_extraction(half, tr)
+    s = score_extraction(half, tr, n_bins=n)               # half the ring's azimuths
     assert s["n"] == n // 2
-    assert abs(s["kept"] - 0.5) < 0.01
+    assert s["kept"] == pytest.approx(0.5)
     assert s["gross"] == pytest.approx(36 / (n // 2))
     assert s["bias"] == pytest.approx(shift, abs=0.01)
     assert s["robust_sd"] < 0.01
     flagged = np.zeros(len(half), bool)
     flagged[::10] = True
-    s = score_extraction(half, tr, flagged=flagged)
+    s = score_extraction(half, tr, flagged=flagged, n_bins=n)
     assert s["gross"] == 0.0 and s["n"] == len(half) - 36
+    assert s["kept"] == pytest.approx((n // 2 - 36) / n)
+    # by default the azimuths sampled are the points given, flagged ones included
+    assert score_extraction(half, tr, flagged=flagged)["kept"] == pytest.approx(0.9)
 
 
 @pytest.mark.slow
