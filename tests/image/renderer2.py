@@ -8,6 +8,17 @@ for the truth), so the true ring is the geometry's, not a by-product of the rend
 Pixel convention: ``image[v, u]`` is the pixel whose centre is at ``(u, v)`` (integer
 coordinates at pixel centres); the truth pixels use the same convention.
 
+Use (tests in ``tests/image`` import it as ``renderer2``; from other test folders,
+``from image.renderer2 import render_scenario``, ``from image.score import score_extraction``)::
+
+    image, off, truth = render_scenario("textured_2500", rng=0)   # or render2(params, ...)
+    s = score_extraction(extracted_pixels, truth, flagged=flags)  # kept, bias, robust_sd, gross
+
+Scenarios (:data:`SCENARIOS`): textured_2500, faint_4000_off, lamps, red_colour, red_bayer,
+cam1280, no_ring, tilted, near_1200, clean_2500 (no texture, lamps or noise). ``truth`` is a
+:class:`Truth2`: per azimuth sample (720 by default) the 3-D point, its pixel, a visibility
+mask, the ring's normal, the rendered peak; ``truth.center`` is the principal point.
+
 How an image is made, for each pixel whose ray reaches the mirror:
 - the ray (``bc.backproject``) meets a vertical wall of the polygonal room, the floor or the
   ceiling; the hit point's material gives an RGB albedo (value noise at four scales, wood
@@ -57,7 +68,8 @@ class Truth2:
     pixels : (n, 2) px, ``bc.project(params, points)``; NaN where not imaged.
     visible : (n,) bool, the ring is drawn there and imaged inside the mirror and the image.
     normal : (n, 2) unit image normal of the ring, pointing away from ``center``.
-    near_lamp : (n,) bool, a lamp or glint covers the ring there (within 2 px).
+    near_lamp : (n,) bool, a lamp or glint alone nearly saturates the ring there (> 200 grey
+        levels within 2 px).
     peak : (n,) rendered laser peak over the background, in 8-bit grey levels (no noise).
     """
 
@@ -635,7 +647,7 @@ def _truth(ctx, image_size, mirror, laser, colour, layers, img_f, ncfg):
     ui = np.clip(np.round(np.nan_to_num(pix_t[:, 0])).astype(int), 0, W - 1)
     vi = np.clip(np.round(np.nan_to_num(pix_t[:, 1])).astype(int), 0, H - 1)
     lamp_mask = np.zeros(H * W, bool)
-    lamp_mask[idx] = V * emit > 60.0
+    lamp_mask[idx] = V * emit > 200.0
     lamp_mask = ndimage.binary_dilation(lamp_mask.reshape(H, W), iterations=2)
     las_img = np.zeros(H * W)
     las_img[idx] = V * las
