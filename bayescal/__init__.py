@@ -19,6 +19,7 @@ from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
 from .image.views import BoardView, board_points
 from .likelihood.priors import Prior, default_pose_prior, default_prior
+from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.camera import CameraResult, load_camera
 from .results.calibration import (
@@ -47,6 +48,7 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "sample_camera_posterior",
     "calibrate_camera",
     "CameraResult",
     "load_camera",
