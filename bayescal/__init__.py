@@ -37,6 +37,7 @@ from .results.reconstruction import (
     Reconstructor,
     reconstruct_frames,
 )
+from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
@@ -48,6 +49,7 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "simulate_views",
     "sample_camera_posterior",
     "calibrate_camera",
     "CameraResult",
