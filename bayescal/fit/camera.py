@@ -217,7 +217,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     ----------
     views : sequence of BoardView
         One or more views (every one is used; a view that cannot be fitted is an error
-        naming it).
+        naming it). A view's per-corner ``covariance`` is not used: the noise is inferred.
     image_size : tuple of int, optional
         ``(width, height)``, px (default: the views' own, else the corners' extent).
     noise : {"view-systematic", "per-view", "plain"}
