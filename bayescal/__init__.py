@@ -12,12 +12,14 @@ from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
 from .errors import DegenerateInputError
+from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
 from .image.views import BoardView, board_points
 from .likelihood.priors import Prior, default_pose_prior, default_prior
+from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.calibration import (
     CalibrationResult,
@@ -26,6 +28,7 @@ from .results.calibration import (
     identifiability_report,
     load_result,
 )
+from .results.camera import CameraResult, load_camera
 from .results.metrics import reconstruction_error, reconstruction_errors
 from .results.posterior import Posterior, load_posterior
 from .results.reconstruction import (
@@ -34,6 +37,7 @@ from .results.reconstruction import (
     Reconstructor,
     reconstruct_frames,
 )
+from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
@@ -45,6 +49,11 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "simulate_views",
+    "sample_camera_posterior",
+    "calibrate_camera",
+    "CameraResult",
+    "load_camera",
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
     "POSE_NAMES",
