@@ -149,10 +149,6 @@ def as_prior(prior=None, camera=None, *, nominal=None):
     camera : object or tuple, optional
         A camera calibration (:func:`~bayescal.sensor.parameters.camera_moments`).
     nominal : SensorParams, optional
-
-    Returns
-    -------
-    Prior
     """
     if isinstance(prior, Prior) and camera is None:
         return prior
@@ -164,9 +160,8 @@ def _camera_marginals(mean, cov, phi):
     and ``phi``'s prior (alpha to first order, at phi's mean): for summaries and starts."""
     mp, vp = float(phi.mean()), float(phi.var())
     s = mean[0] + mp
-    out = {"xi": stats.norm(mean[0], np.sqrt(cov[0, 0])),
-           "u0": stats.norm(mean[3], np.sqrt(cov[3, 3])),
-           "v0": stats.norm(mean[4], np.sqrt(cov[4, 4]))}
+    out = {n: stats.norm(mean[k], np.sqrt(cov[k, k])) for n, k in (("xi", 0), ("u0", 3),
+                                                                      ("v0", 4))}
     for name, k in (("alpha_u", 1), ("alpha_v", 2)):
         g = np.array([-mean[k] / s**2, 1.0 / s])          # d alpha / d (xi, gamma)
         sub = cov[np.ix_([0, k], [0, k])]
@@ -288,7 +283,7 @@ class Prior:
     def pose_residuals(self, pose, *, jacobian=False):
         """The pose prior as whitened residuals (4,) (and their diagonal Jacobian (4, 4)),
         as :meth:`residuals` does for the eight parameters."""
-        return _whitened(self.pose_dists, POSE_NAMES, pose, jacobian)
+        return _whitened(self.pose_dists, POSE_NAMES, pose, jacobian, self._normal)
 
     # -- paper parameters -------------------------------------------------
     def logpdf(self, a):
@@ -419,7 +414,7 @@ class Prior:
             camera, full: its rows are those of :meth:`theta_residuals`)
         """
         if self.camera is None:
-            return _whitened(self.dists, PARAM_NAMES, a, jacobian)
+            return _whitened(self.dists, PARAM_NAMES, a, jacobian, self._normal)
         a = np.asarray(a, dtype=float)
         theta, phi = to_identifiable(a), a[1]
         if not jacobian:
@@ -454,7 +449,8 @@ class Prior:
             r, D = self.residuals(a, jacobian=True)
             return r, D @ identifiable_jacobian(theta, phi)
         rc = self._cam_white @ (theta[:5] - self.camera[0])
-        rest = _whitened(self.dists, ("phi", "h", "beta"), [phi, theta[5], theta[6]], jacobian)
+        rest = _whitened(self.dists, ("phi", "h", "beta"), [phi, theta[5], theta[6]], jacobian,
+                         self._normal)
         if not jacobian:
             return np.concatenate([rc, rest])
         J = np.zeros((8, 8))
@@ -469,15 +465,17 @@ class Prior:
                 + self._logpdf("h", theta[..., 5]) + self._logpdf("beta", theta[..., 6]))
 
 
-def _whitened(dists, names, a, jacobian):
-    """Whitened prior residuals of independent priors ``dists`` at ``a`` (len(names),)."""
+def _whitened(dists, names, a, jacobian, normal=None):
+    """Whitened prior residuals of independent priors ``dists`` at ``a`` (len(names),);
+    ``normal``: ``{name: (mean, sd)}`` of the normal ones, read instead of scipy's."""
     a = np.asarray(a, dtype=float)
     r = np.empty(len(names))
     d = np.empty(len(names))
+    normal = {} if normal is None else normal
     for k, name in enumerate(names):
         dist = dists[name]
-        if getattr(dist.dist, "name", "") == "norm":
-            mu, sd = dist.mean(), dist.std()
+        if name in normal or getattr(dist.dist, "name", "") == "norm":
+            mu, sd = normal[name] if name in normal else (dist.mean(), dist.std())
             r[k] = (a[k] - mu) / sd
             d[k] = 1.0 / sd
         else:
