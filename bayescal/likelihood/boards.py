@@ -1,0 +1,189 @@
+"""The likelihood of chessboard views: per-view noise with a view-level systematic term.
+
+View ``k`` has ``M_k`` corners; its residuals ``r_k = pixels - project_board(...)``
+(``2 M_k`` numbers, u and v interleaved) are modelled as Gaussian with covariance::
+
+    Sigma_k = sigma_k^2 I + tau^2 B_k B_k^T
+
+``sigma_k`` is the view's own corner noise (px); ``B_k`` (``2 M_k x p``) spans a smooth
+pixel displacement field over the board (polynomials of degree ``degree`` in the
+board coordinates, separately in u and v, each column scaled to unit rms over the
+corners), and ``tau`` (px) is the rms of that field: a per-view systematic error
+(the board's print, its flatness, the mirror's departure from eq. (1) over the
+patch the board covers), independent between views. ``tau = 0`` and one sigma
+for all views is plain least squares. ``docs/camera.md`` argues the choice from
+real views.
+
+Every product with ``Sigma_k^-1`` goes through Woodbury with
+``N_k = sigma_k^2 I_p + tau^2 B_k^T B_k``::
+
+    X^T Sigma^-1 Y = (X^T Y - tau^2 (X^T B) N^-1 (B^T Y)) / sigma^2
+    log det Sigma  = (2 M_k - p) log sigma^2 + log det N
+
+Views with fewer corners are padded (mask), so that every array has a view axis
+and any number of leading axes (walkers).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..image.views import BoardView
+from ..sensor.board import project_board
+
+__all__ = ["BoardLikelihood", "NOISE_MODELS"]
+
+#: the noise models: name -> (per-view sigma, systematic term)
+NOISE_MODELS = {"plain": (False, False), "per-view": (True, False),
+                "view-systematic": (True, True)}
+
+
+def _basis(points, degree):
+    """Polynomial displacement fields over a board: (M, 2) -> (2M, 2 * n_monomials)."""
+    xy = points[:, :2]
+    c = xy.mean(axis=0)
+    half = np.maximum(np.ptp(xy, axis=0) / 2.0, 1e-9)
+    x, y = ((xy - c) / half).T
+    mono = [x ** i * y ** (d - i) for d in range(degree + 1) for i in range(d + 1)]
+    F = np.stack(mono, axis=-1)
+    F = F / np.sqrt(np.mean(F * F, axis=0))
+    M, q = F.shape
+    B = np.zeros((M, 2, 2 * q))
+    B[:, 0, :q] = F
+    B[:, 1, q:] = F
+    return B.reshape(2 * M, 2 * q)
+
+
+class BoardLikelihood:
+    """Residuals, Woodbury products and the pose-integrated likelihood of board views.
+
+    Parameters
+    ----------
+    views : sequence of BoardView
+    degree : int
+        Degree of the per-view displacement field (2: 12 columns per view).
+    basis : {"poly", "intrinsics"}
+        The systematic field's shape: polynomials over the board, or the view's own
+        derivatives of the pixels in the five intrinsics (a per-view error of the
+        effective intrinsics; set by :meth:`set_basis`).
+    """
+
+    def __init__(self, views, *, degree=2, basis="poly"):
+        views = list(views)
+        if not views or not all(isinstance(v, BoardView) for v in views):
+            raise TypeError("views must be a non-empty sequence of BoardView")
+        self.views = views
+        self.names = [v.name for v in views]
+        self.K = len(views)
+        M = max(v.n_corners for v in views)
+        self.M = M
+        self.mask = np.zeros((self.K, M), bool)
+        self.pixels = np.zeros((self.K, M, 2))
+        self.points = np.zeros((self.K, M, 3))
+        self.degree = int(degree)
+        if basis not in ("poly", "intrinsics"):
+            raise ValueError(f"basis must be 'poly' or 'intrinsics', got {basis!r}")
+        self.basis = basis
+        p = (self.degree + 1) * (self.degree + 2) if basis == "poly" else 5
+        self.B = np.zeros((self.K, 2 * M, p))
+        for k, v in enumerate(views):
+            m = v.n_corners
+            self.mask[k, :m] = True
+            self.pixels[k, :m] = v.pixels
+            self.points[k, :m] = v.points
+            self.points[k, m:] = v.points[0]
+            if basis == "poly":
+                self.B[k, :2 * m] = _basis(v.points, self.degree)
+        self.n_obs = 2 * self.mask.sum(axis=1)                       # (K,)
+        self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
+        self._w = np.repeat(self.mask, 2, axis=1).astype(float)     # (K, 2M)
+
+    def set_basis(self, intrinsics, poses):
+        """With ``basis="intrinsics"``: the field's columns are each view's pixel derivatives
+        in the five intrinsics at ``(intrinsics, poses)``, scaled to unit rms per corner."""
+        if self.basis != "intrinsics":
+            return
+        _, Jk, _ = self.residuals(intrinsics, poses, jacobian=True)
+        scale = np.sqrt(np.sum(Jk * Jk, axis=1, keepdims=True) / self.mask.sum(1)[:, None, None])
+        self.B = Jk / scale
+        self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
+
+    # ------------------------------------------------------------------ model
+    def residuals(self, intrinsics, poses, *, jacobian=False):
+        """Residuals ``pixels - model`` (..., K, 2M), zero on padding; Jacobians of the model.
+
+        Returns ``r`` and, with ``jacobian=True``, ``Jk`` (..., K, 2M, 5) and ``Jp``
+        (..., K, 2M, 6): derivatives of the residuals (minus the model's).
+        """
+        k = np.asarray(intrinsics, float)[..., None, :]
+        out = project_board(k, poses, self.points, jacobian=jacobian)
+        uv = out[0]
+        sh = uv.shape[:-2]
+        r = ((self.pixels - uv).reshape(sh + (2 * self.M,))) * self._w
+        if not jacobian:
+            return r
+        w = self._w[..., None]
+        Jk = -out[2].reshape(sh + (2 * self.M, 5)) * w
+        Jp = -out[3].reshape(sh + (2 * self.M, 6)) * w
+        return r, Jk, Jp
+
+    # ------------------------------------------------------------- noise algebra
+    def noise_factors(self, s2, t2):
+        """Woodbury pieces for noise ``s2`` (..., K) and ``t2`` (...): N^-1 and log det Sigma."""
+        s2 = np.asarray(s2, float)
+        t2 = np.asarray(t2, float)[..., None]
+        p = self.B.shape[-1]
+        N = s2[..., None, None] * np.eye(p) + t2[..., None, None] * self.BtB
+        Ninv = np.linalg.inv(N)
+        logdet = (self.n_obs - p) * np.log(s2) + np.linalg.slogdet(N)[1]
+        return Ninv, logdet
+
+    def gram(self, G):
+        """``(G^T G, G^T B)`` per view: G (..., K, 2M, a) -> (..., K, a, a), (..., K, a, p)."""
+        Gt = np.swapaxes(G, -1, -2)
+        return Gt @ G, Gt @ self.B
+
+    def weighted(self, GG, GB, s2, t2, Ninv):
+        """``G^T Sigma^-1 G`` from :meth:`gram`'s output (Woodbury)."""
+        s2 = np.asarray(s2, float)[..., None, None]
+        t2 = np.asarray(t2, float)[..., None, None, None]
+        return (GG - t2 * (GB @ Ninv @ np.swapaxes(GB, -1, -2))) / s2
+
+    def products(self, G, s2, t2, Ninv):
+        """``G^T Sigma^-1 G`` per view: G (..., K, 2M, a) -> (..., K, a, a)."""
+        return self.weighted(*self.gram(G), s2, t2, Ninv)
+
+    # --------------------------------------------------------- poses integrated
+    def pose_laplace(self, intrinsics, poses, s2, t2, *, n_steps=2):
+        """Gauss-Newton on every view's pose at fixed intrinsics and noise, then Laplace.
+
+        Parameters
+        ----------
+        intrinsics : ndarray, shape (..., 5)
+        poses : ndarray, shape (..., K, 6)
+            Starting poses.
+        s2 : ndarray, shape (..., K)
+        t2 : ndarray, shape (...)
+        n_steps : int
+            Gauss-Newton steps (each one residual and Jacobian evaluation).
+
+        Returns
+        -------
+        log_marginal : ndarray, shape (..., K)
+            ``log int N(r_k; 0, Sigma_k) d pose_k`` (flat pose prior), with the
+            quadratic value at the last step's Gauss-Newton minimum.
+        poses : ndarray, shape (..., K, 6)
+            The updated poses.
+        """
+        Ninv, logdet = self.noise_factors(s2, t2)
+        for _ in range(int(n_steps)):
+            r, _, Jp = self.residuals(intrinsics, poses, jacobian=True)
+            G = np.concatenate([Jp, r[..., None]], axis=-1)
+            P = self.products(G, s2, t2, Ninv)
+            H, g, rr = P[..., :6, :6], P[..., :6, 6], P[..., 6, 6]
+            step = np.linalg.solve(H, g[..., None])[..., 0]
+            poses = poses - step
+        quad = rr - np.einsum("...i,...i->...", g, step)
+        logdetH = np.linalg.slogdet(H)[1]
+        lm = -0.5 * (quad + logdet + logdetH + (self.n_obs - 6) * np.log(2 * np.pi))
+        return np.where(np.isfinite(lm), lm, -np.inf), poses
