@@ -58,6 +58,7 @@ from .sequential_stages import (
     stage2_cone,
     standardized_stage1,
     standardized_stage2,
+    with_camera_part,
 )
 
 __all__ = ["calibrate_sequential", "sequential_residuals", "SequentialResiduals", "POSE_NAMES",
@@ -366,6 +367,8 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     # first-order covariance of (h, beta): laser-pixel noise + stage-1 uncertainty
     C13, A, B1, w = cone_covariance(s1.x, C1, s2.x, P, info["planes_w"], info["laser_pix"],
                                     info["laser_plane"], info["sigma"])
+    if info["camera"] is not None:      # the camera's part to second order (h bends with it)
+        C13 = with_camera_part(s1.x, s2.x, P, info, C13, method=method, max_nfev=max_nfev)
     keep = [0, 1, 2, 3, 4] + list(range(11, 11 + p2))
     cov7 = C13[np.ix_(keep, keep)]
     rms2 = float(np.sqrt(np.mean(s2.fun**2)))
