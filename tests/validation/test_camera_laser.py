@@ -118,7 +118,8 @@ def _check_sum_of_squares(z, p_fail):
 
 
 def test_camera_to_laser_z_scores_have_unit_variance():
-    # 20 replications (~8 s on a loaded machine); a false failure once in 1000 runs (chi-square bands)
+    # 20 replications (~8 s on a loaded machine); a false failure once in 1000 runs
+    # (chi-square bands)
     z = np.array([_z_scores(1000 + s) for s in range(20)])
     _check_sum_of_squares(z, 1e-3)
 
@@ -133,3 +134,49 @@ def test_camera_to_laser_coverage_of_90_percent_intervals():
     print(dict(zip(NAMES, inside, strict=True)), "band", lo, hi)
     assert np.all((inside >= lo) & (inside <= hi)), dict(zip(NAMES, inside, strict=True))
     _check_sum_of_squares(z, 1e-2)
+
+
+def _chain(seed):
+    """The whole chain once: simulated boards (the measured noise structure) calibrate the
+    camera, which with a simulated room calibrates the laser; z-scores of h and beta
+    (simultaneous, sequential) and of the camera's own intrinsics against the truth."""
+    from bayescal.scene.boards import simulate_views
+
+    rng = np.random.default_rng(seed)
+    views, truth = simulate_views(rng=rng)
+    cam = bc.calibrate_camera(views)
+    k = np.array(truth["intrinsics"], float)
+    sensor = bc.SensorParams.from_identifiable(np.r_[k, 200.0, np.pi / 3], 0.0)
+    ds = bc.simulate_room(sensor, range_mm=2500, n_points=100, sigma_px=0.3,
+                          approx_error=0.03, rng=rng)
+    res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                    sigma_scene=ds.sigma_scene, camera=cam,
+                                    prior=_designer_prior(rng))
+    assert res.converged, res.message
+    seq = bc.calibrate_sequential(ds.calibration, camera=cam)
+    th0 = sensor.to_identifiable()
+    z = [(r.params.to_identifiable() - th0) / np.sqrt(np.diag(r.covariance(identifiable=True)))
+         for r in (res, seq)]
+    return np.r_[z[0][5:7], z[1][5:7]], res, cam, k
+
+
+def test_the_chain_from_simulated_boards_to_the_laser():
+    z, res, cam, k = _chain(0)
+    print("z (h, beta; sequential h, beta):", np.round(z, 2))
+    assert np.all(np.abs(z) < 4.0)
+    # the laser data refine the camera: its intrinsics' sds shrink, the centre by far
+    sd_cam = np.sqrt(np.diag(cam.covariance())[:5])
+    sd_laser = np.sqrt(np.diag(res.covariance(identifiable=True))[:5])
+    assert np.all(sd_laser <= sd_cam * 1.001) and np.all(sd_laser[3:] < 0.5 * sd_cam[3:])
+
+
+@pytest.mark.slow
+def test_the_chain_from_simulated_boards_to_the_laser_covers():
+    # 40 chains (~4 min): each statistic's sum of squared z-scores in its chi-square(40)
+    # band, a false failure once in 100 runs; the camera's own honesty is camcore's
+    z = np.array([_chain(100 + s)[0] for s in range(40)])
+    m = len(z)
+    lo, hi = stats.chi2(m).ppf([0.01 / 8, 1 - 0.01 / 8])
+    ss = np.sum(z**2, axis=0)
+    print("chain sum z^2 / m (h, beta, seq h, seq beta):", np.round(ss / m, 2), lo / m, hi / m)
+    assert np.all((ss > lo) & (ss < hi)), ss / m
