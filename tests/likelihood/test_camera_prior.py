@@ -144,3 +144,17 @@ def test_prior_draws_and_marginals_follow_the_camera():
         np.testing.assert_allclose(float(prior.dists[name].std()), a[:, k].std(), rtol=0.05,
                                    err_msg=name)
     assert prior.mean().xi == THETA0[0]
+
+
+def test_a_posterior_file_keeps_the_camera_prior():
+    import json
+
+    from bayescal.results.posterior_file import _prior_record, _read_prior
+
+    prior = Prior({"h": stats.norm(210, 5)}, camera=_camera())
+    back = _read_prior(json.loads(json.dumps(_prior_record(prior))))
+    np.testing.assert_allclose(back.camera[0], prior.camera[0])
+    np.testing.assert_allclose(back.camera[1], prior.camera[1])
+    assert float(back.dists["h"].mean()) == 210.0
+    th = THETA0 + 0.01
+    np.testing.assert_allclose(back.logpdf_theta(th), prior.logpdf_theta(th), rtol=1e-12)
