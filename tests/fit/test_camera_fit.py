@@ -136,3 +136,17 @@ def test_the_sampler_keeps_gamma_when_the_camera_holds_it():
 
     target = CollapsedTarget(NoExtras(), tight, None, 1, c)
     np.testing.assert_allclose(target.log_prior(THETA[None]), tight.logpdf_theta(THETA[None]))
+
+
+@pytest.mark.slow
+def test_floor_plan_posterior_on_a_camera():
+    # the plan sampler with the camera's prior (aligned cone, 60 points, 3 % plan)
+    ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.03, rng=3)
+    cam = (THETA[:5], COV * 0.01)
+    post = bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.3, camera=cam, rng=2,
+                               progress=False, min_ess=200, n_samples=400)
+    th = bc.sensor.parameters.to_identifiable(post.param_samples)
+    z = (th.mean(0) - THETA) / th.std(0)
+    print("plan posterior z:", np.round(z, 2), "tau", np.round(post.tau, 1))
+    assert post.converged and np.all(np.abs(z) < 4)
+    assert np.all(th[:, :5].std(0) <= 1.05 * np.sqrt(np.diag(cam[1])))
