@@ -19,8 +19,8 @@ from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
 from .image.views import BoardView, board_points
 from .likelihood.priors import Prior, default_pose_prior, default_prior
+from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
-from .results.camera import CameraResult, load_camera
 from .results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -28,6 +28,7 @@ from .results.calibration import (
     identifiability_report,
     load_result,
 )
+from .results.camera import CameraResult, load_camera
 from .results.metrics import reconstruction_error, reconstruction_errors
 from .results.posterior import Posterior, load_posterior
 from .results.reconstruction import (
@@ -36,6 +37,7 @@ from .results.reconstruction import (
     Reconstructor,
     reconstruct_frames,
 )
+from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
@@ -47,6 +49,8 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "simulate_views",
+    "sample_camera_posterior",
     "calibrate_camera",
     "CameraResult",
     "load_camera",
