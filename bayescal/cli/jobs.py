@@ -29,7 +29,7 @@ from ..checks.datafile import (
 from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
-from .lasermodel import model_setting, nominal_and_prior
+from .lasermodel import camera_setting, model_setting, nominal_and_prior
 from .pixelcov import pixel_cov_setting
 
 __all__ = ["SimulateJob", "ExtractJob",
@@ -164,6 +164,8 @@ class CalibrateJob:
     model : {"aligned", "misaligned", "auto"}
         The laser model (``--model``; ``auto`` where only aligned is supported
         became ``aligned``, and ``model_note`` says so).
+    camera : CameraResult or None
+        ``--camera``: the camera calibrated beforehand, the prior of its intrinsics.
     """
 
     method: str
@@ -192,6 +194,7 @@ class CalibrateJob:
     figures: tuple = ()
     model: str = "aligned"
     model_note: str | None = None
+    camera: object = None
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -201,6 +204,10 @@ class CalibrateJob:
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
         nominal, prior = nominal_and_prior(o["nominal"], o["prior"])
+        camera = None
+        if o["camera"] is not None:             # the camera's prior, nominal and image size
+            camera, nominal, prior, size = camera_setting(o["camera"], nominal, o["prior"])
+            o["image_size"] = size or o["image_size"]
         data, calib, plan = cls._read(o, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)
@@ -214,7 +221,7 @@ class CalibrateJob:
             _check_model_input(data, plan, nominal, spx, ssc)
         dups = warn_duplicates(data) if data is not None and method != "sequential" else []
         names = ("data", "points", "walls", "calibration", "calibration_laser", "nominal",
-                 "truth")
+                 "truth", "camera")
         check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
         return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
                    truth=truth, sigma_px=spx, sigma_px_how=spx_how, sigma_scene=ssc,
@@ -224,7 +231,7 @@ class CalibrateJob:
                    force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
                    title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
                    plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups),
-                   model=model, model_note=note)
+                   model=model, model_note=note, camera=camera)
 
     @staticmethod
     def _read(o, nominal):

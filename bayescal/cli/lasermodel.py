@@ -22,7 +22,8 @@ import dataclasses
 from ..errors import Failure, UsageError
 from ..sensor.pose import POSE_NAMES
 
-__all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS"]
+__all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS", "camera_setting",
+           "CAMERA_FILE"]
 
 #: the models a fit can have (``auto`` picks one of them)
 FITTED_MODELS = ("aligned", "misaligned")
@@ -195,3 +196,69 @@ class ModelChoice:
         if self.note:
             lines.append(self.note)
         return "\n".join(lines)
+
+
+#: the file ``bayescal calibrate-camera`` writes into its output folder
+CAMERA_FILE = "camera.json"
+_CAMERA_PAPER = ("xi", "alpha_u", "alpha_v", "u0", "v0")
+
+
+def camera_setting(path, nominal, prior_specs):
+    """The camera of ``calibrate --camera`` (its ``camera.json`` or the folder holding it).
+
+    Its intrinsics become the nominal camera (``phi``, ``h``, ``beta`` stay those of
+    ``--nominal`` or the paper's) and, with their covariance, the camera's prior; its
+    image size replaces ``--image-size``.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        ``--camera``.
+    nominal : SensorParams
+        From :func:`nominal_and_prior`.
+    prior_specs : list of (str, distribution) or None
+        ``--prior`` values: none of ``xi, alpha_u, alpha_v, u0, v0`` (the camera gives them).
+
+    Returns
+    -------
+    camera : CameraResult
+    nominal : SensorParams
+    prior : dict
+        The default priors of ``phi``, ``h``, ``beta`` (and the pose's) centred on
+        ``nominal``, with the overrides; the camera's prior replaces the other five.
+    image_size : tuple of int or None
+
+    Raises
+    ------
+    UsageError
+        No camera file there, a file that is not a camera result, or a ``--prior`` of
+        one of the five (exit 2, nothing written).
+    """
+    import pathlib
+
+    import numpy as np
+
+    from ..likelihood.priors import default_prior
+    from ..results.camera import load_camera
+    from ..sensor.parameters import SensorParams, camera_moments
+
+    p = pathlib.Path(path)
+    p = p / CAMERA_FILE if p.is_dir() else p
+    if not p.is_file():
+        raise UsageError(f"--camera {path}: no camera file (expected the {CAMERA_FILE} that "
+                         "'bayescal calibrate-camera' writes, or its folder)")
+    try:
+        camera = load_camera(p)
+        mean, _ = camera_moments(camera)
+        nominal = SensorParams.from_identifiable(np.r_[mean, nominal.h, nominal.beta],
+                                                 nominal.phi)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise UsageError(f"--camera {p}: not a usable camera calibration ({exc})") from None
+    clash = [name for name, _ in prior_specs or [] if name in _CAMERA_PAPER]
+    if clash:
+        raise UsageError(f"--prior {clash[0]}=...: --camera {p} gives the prior of xi, "
+                         "alpha_u, alpha_v, u0 and v0; leave them out")
+    prior = {n: d for n, d in default_prior(nominal).items() if n not in _CAMERA_PAPER}
+    prior.update(dict(prior_specs or []))
+    size = getattr(camera, "image_size", None)
+    return camera, nominal, prior, None if size is None else tuple(int(s) for s in size)

@@ -318,6 +318,12 @@ CALIBRATE_OPTIONS = (
     Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values of "
                          "the 8 parameters (JSON object, or one with a 'params' object); "
                          "centres the default priors (default: the paper's sensor)"}),
+    Opt(("--camera",), {"type": pathlib.Path, "metavar": "PATH", "help": "a camera calibrated "
+                        "beforehand: the camera.json of 'bayescal calibrate-camera' or its "
+                        "folder. Its intrinsics and their covariance become the prior of xi, "
+                        "gamma_u, gamma_v, u0, v0 (the laser data refine them), its values the "
+                        "nominal camera and its image size --image-size; --nominal then gives "
+                        "phi, h and beta. sequential: stage 2 runs on it"}),
     Opt(("--prior",), {"type": prior_option, "action": "append", "metavar": "NAME=DIST(ARGS)",
                        "help": "override one prior with a scipy.stats distribution, e.g. "
                        "'h=norm(200, 20)', or with --model misaligned/auto one of the laser "

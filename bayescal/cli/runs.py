@@ -187,6 +187,8 @@ def _bayes(job):
         kw["outliers"] = False
     if uses_pixel_cov(job.method, data, job.plan):
         kw["pixel_cov"] = data.pixel_cov
+    if job.camera is not None:
+        kw["camera"] = job.camera
     if job.plan is None:
         post = bc.sample_posterior(data.pixels, data.approx_points, sigma_px=job.sigma_px,
                                    sigma_scene=job.sigma_scene, prior=job.prior, rng=job.seed,
@@ -213,7 +215,7 @@ def _least_squares(job):
 
     from ..sensor.parameters import SensorParams
 
-    kw = {}
+    kw = {} if job.camera is None else {"camera": job.camera}
     if job.prior is not None or job.nominal != SensorParams.paper():
         kw["init"] = job.nominal
     if job.method == "sequential":
@@ -323,8 +325,10 @@ def _recon(job, result):
 def _prior_of(job):
     if job.method != "simultaneous":
         return None
-    from ..likelihood.priors import default_prior
+    from ..likelihood.priors import Prior, default_prior
 
+    if job.camera is not None:          # the camera's marginals beside the other priors
+        return dict(Prior(job.prior, nominal=job.nominal, camera=job.camera).dists)
     prior = default_prior(job.nominal)
     prior.update(job.prior or {})
     return prior

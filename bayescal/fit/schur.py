@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..sensor.laser import cone_points_geo
-from ..sensor.parameters import from_identifiable, identifiable_jacobian
 
 __all__ = ["solve_map", "MapSolution", "damped_step"]
 
@@ -45,15 +44,15 @@ def _prior_rows(prior, psi, *, jacobian=True):
     """Prior rows at ``psi = (geometry, phi)`` and their Jacobian in psi.
 
     The geometry is theta (7) or, for the misaligned model, theta and the laser pose
-    (11): eight rows on the paper parameters, then four on the pose.
+    (11): eight rows on the paper parameters (with a camera prior, five whitened rows
+    on its intrinsics, then phi, h, beta:
+    :meth:`~bayescal.likelihood.priors.Prior.theta_residuals`), then four on the pose.
     """
     nt = len(psi) - 1
-    a = from_identifiable(psi[:7], psi[nt])
     if not jacobian:
-        r = prior.residuals(a)
+        r = prior.theta_residuals(psi[:7], psi[nt])
         return r if nt == 7 else np.concatenate([r, prior.pose_residuals(psi[7:nt])])
-    r, D = prior.residuals(a, jacobian=True)
-    J8 = D @ identifiable_jacobian(psi[:7], psi[nt])           # (8, 8) in (theta, phi)
+    r, J8 = prior.theta_residuals(psi[:7], psi[nt], jacobian=True)   # (8, 8) in (theta, phi)
     if nt == 7:
         return r, J8
     rp, Dp = prior.pose_residuals(psi[7:nt], jacobian=True)

@@ -37,24 +37,28 @@ from ..results.calibration import (
 )
 from ..scene.simulate import CalibrationData, Dataset
 from ..sensor.laser import triangulate, triangulate_plane
-from ..sensor.parameters import PARAM_NAMES, SensorParams
+from ..sensor.parameters import PARAM_NAMES, SensorParams, camera_moments
 from ..sensor.pose import POSE_NAMES as LASER_POSE_NAMES
 from ..sensor.pose import LaserPose
 from .sequential_stages import (
     N_STAGE1 as _N1,
 )
 from .sequential_stages import (
+    camera_stage1_covariance,
     cone_covariance,
     fit_plane,
     laplace_covariance,
     laser_points,
     plane_residual_jacobians,
+    run_pose_stage,
     run_stage1,
+    stage1_noise,
     stage1_residuals,
     stage2_chi2,
     stage2_cone,
     standardized_stage1,
     standardized_stage2,
+    with_camera_part,
 )
 
 __all__ = ["calibrate_sequential", "sequential_residuals", "SequentialResiduals", "POSE_NAMES",
@@ -210,7 +214,7 @@ def sequential_residuals(result):
 # --------------------------------------------------------------------------- main
 def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit="cone",
                          sigma_px=None, method="lm", max_nfev=2000, restarts=0, rng=None,
-                         model="aligned"):
+                         model="aligned", camera=None):
     """Sequential calibration of the paper's section II: camera, then laser.
 
     Parameters
@@ -257,6 +261,15 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
         and offset (``h, beta, tilt_x, tilt_y, offset_x, offset_y``, fitted to the laser
         points on the calibration planes; ``result.laser``, an (11, 11) identifiable
         covariance). With ``fit="cone"`` only.
+    camera : object, optional
+        A camera calibrated beforehand (``bc.calibrate_camera(views)``, a camera
+        posterior, or ``(mean, cov)`` of ``xi, gamma_u, gamma_v, u0, v0``). Stage 1
+        then fits only the patterns' pose, the camera held at its intrinsics, and the
+        camera's covariance is carried through the pose into stage 2's covariance
+        (``extras["stage1_covariance"]``: the camera's, and the pose's given it);
+        ``restarts`` does not apply and ``init`` gives only ``h`` and ``beta``. The
+        pattern pixels' noise is then estimated with the camera's directions
+        projected out of their residuals too (its error is not their noise).
 
     Returns
     -------
@@ -303,20 +316,30 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     restarts = _check_count(restarts, "restarts", minimum=0)
     planes_w = _fit_calibration_planes(grid_w, grid_plane, laser_plane)
 
-    s1 = run_stage1(grid_w, grid_pix, init, pose0, method=method, max_nfev=max_nfev,
-                     restarts=restarts, rng=rng)
+    cam = None if camera is None else camera_moments(camera)
+    if cam is None:
+        s1 = run_stage1(grid_w, grid_pix, init, pose0, method=method, max_nfev=max_nfev,
+                        restarts=restarts, rng=rng)
+    else:                                   # the camera given: stage 1 fits the pose alone
+        s1 = run_pose_stage(grid_w, grid_pix, cam[0], pose0, method=method, max_nfev=max_nfev)
+    n_fit1 = _N1 if cam is None else 6
     theta = np.concatenate([s1.x[:5], [init.h, init.beta]])
     n_res1 = grid_pix.size
     rms1 = float(np.sqrt(np.mean(s1.fun**2)))
-    sigma_est = rms1 / np.sqrt(1.0 - _N1 / n_res1)
+    sigma_est = (rms1 / np.sqrt(1.0 - _N1 / n_res1) if cam is None
+                 else stage1_noise(s1.x, s1.fun, grid_w, grid_pix))
     sigma = sigma_est if sigma_px is None else sigma_px
     info = {"grid_w": grid_w, "grid_pix": grid_pix, "laser_pix": laser_pix,
             "laser_plane": laser_plane, "planes_w": planes_w, "fix_phi": fix_phi,
             "sigma": sigma, "sigma_est": sigma_est, "rms1": rms1, "n_res1": n_res1,
-            "nfev": s1.nfev, "init": init, "room_pixels": room_pixels, "model": model}
+            "nfev": s1.nfev, "init": init, "room_pixels": room_pixels, "model": model,
+            "n_fit1": n_fit1, "camera": cam}
     if not (s1.success and np.all(np.isfinite(s1.x)) and np.isfinite(rms1)):
         _fail(f"stage 1 (camera) did not converge: {s1.message}", theta, s1, info)
-    C1 = laplace_covariance(stage1_residuals(s1.x, grid_w, grid_pix, jacobian=True), sigma)
+    if cam is None:
+        C1 = laplace_covariance(stage1_residuals(s1.x, grid_w, grid_pix, jacobian=True), sigma)
+    else:
+        C1 = camera_stage1_covariance(s1.x, grid_w, grid_pix, cam[1], sigma)
 
     P, valid = laser_points(s1.x, planes_w, laser_pix, laser_plane)
     if not np.all(valid):
@@ -344,6 +367,8 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     # first-order covariance of (h, beta): laser-pixel noise + stage-1 uncertainty
     C13, A, B1, w = cone_covariance(s1.x, C1, s2.x, P, info["planes_w"], info["laser_pix"],
                                     info["laser_plane"], info["sigma"])
+    if info["camera"] is not None:      # the camera's part to second order (h bends with it)
+        C13 = with_camera_part(s1.x, s2.x, P, info, C13, method=method, max_nfev=max_nfev)
     keep = [0, 1, 2, 3, 4] + list(range(11, 11 + p2))
     cov7 = C13[np.ix_(keep, keep)]
     rms2 = float(np.sqrt(np.mean(s2.fun**2)))
@@ -356,6 +381,9 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     J2[:, 11:] = A
     J2 /= np.sqrt(w)[:, None]          # whitened up to the common factor 1 / sigma
     Jall = np.vstack([np.column_stack([J1, np.zeros((len(J1), p2))]), J2])
+    if info["camera"] is not None:           # the camera's information, in the same units
+        W = np.linalg.inv(np.linalg.cholesky(info["camera"][1]))
+        Jall = np.vstack([Jall, np.pad(info["sigma"] * W, ((0, 0), (0, 6 + p2)))])
     J8 = np.column_stack([Jall[:, keep[:7]] @ T, Jall[:, 5:11], Jall[:, 13:]])
     report = identifiability_report(J8, PARAM_NAMES + POSE_NAMES + LASER_POSE_NAMES[:p2 - 2])
     var_pix = info["sigma"] ** 2 * w
@@ -369,7 +397,7 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     if info["room_pixels"] is not None:
         points = triangulate(params, info["room_pixels"], laser=laser)
     return _result(params, theta[:7], cov7, points, {"cone_mm": rms2}, s1, C1, P, info,
-                   report, extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + p2,
+                   report, extras, n_res=info["n_res1"] + len(P), n_unk=info["n_fit1"] + p2,
                    message=f"stage 1: {s1.message} | stage 2: {s2.message}", laser=laser)
 
 
@@ -390,7 +418,7 @@ def _finish_plane(s1, C1, theta, P, info):
               **_residual_extras(s1, J1, info, P @ plane[:3] + plane[3], A,
                                  info["sigma"] ** 2 * np.sum(g_pix**2, axis=1), B1, C1)}
     return _result(params, theta, cov7, points, {"plane_mm": rms2}, s1, C1, P, info, report,
-                   extras, n_res=info["n_res1"] + len(P), n_unk=_N1 + 3,
+                   extras, n_res=info["n_res1"] + len(P), n_unk=info["n_fit1"] + 3,
                    message=f"stage 1: {s1.message} | stage 2: total least squares plane")
 
 
@@ -427,8 +455,9 @@ def _result(params, theta, cov7, points, rms_extra, s1, C1, P, info, report, ext
         "pose": s1.x[5:].copy(), "pose_covariance": C1[5:, 5:].copy(),
         "stage1_covariance": C1, "laser_points": P,
         "calibration_planes": info["planes_w"], "sigma_px_used": info["sigma"],
-        "stage1": {"n_residuals": info["n_res1"], "n_unknowns": _N1, "nfev": s1.nfev,
-                   "rms_px": info["rms1"], "status": s1.status},
+        "stage1": {"n_residuals": info["n_res1"], "n_unknowns": info["n_fit1"],
+                   "nfev": s1.nfev, "rms_px": info["rms1"], "status": s1.status},
+        "camera_given": info["camera"] is not None,
     })
     return CalibrationResult(
         method="sequential", params=params, points=points, covariance=cov8,
@@ -461,6 +490,6 @@ def _fail(message, theta, s1, info, *, C1=None):
         report = _stage1_report(s1.x, params, info)
         result = _result(params, th, cov7, None, {}, s1, C1_, None, info, report,
                          {"theta_raw": np.asarray(theta, float)}, n_res=info["n_res1"],
-                         n_unk=_N1, message=message, converged=False)
+                         n_unk=info["n_fit1"], message=message, converged=False)
         break
     raise ConvergenceError(message, result)

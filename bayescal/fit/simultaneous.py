@@ -32,7 +32,7 @@ from ..likelihood.outliers import (
     em_update,
 )
 from ..likelihood.points import LaserLikelihood
-from ..likelihood.priors import Prior
+from ..likelihood.priors import as_prior
 from ..results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -81,7 +81,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
                            outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
-                           pixel_cov=None, model="aligned"):
+                           pixel_cov=None, model="aligned", camera=None):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
 
     Parameters
@@ -146,6 +146,13 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         5 mm, :func:`~bayescal.likelihood.priors.default_pose_prior`;
         ``docs/model.md``, "A misaligned laser cone"). With approximate points
         and ``estimate_points=True``, or with a FloorPlan.
+    camera : object, optional
+        A camera calibrated beforehand (``bc.calibrate_camera(views)``, a camera
+        posterior, or ``(mean, cov)`` of ``xi, gamma_u, gamma_v, u0, v0``): its
+        intrinsics and their covariance become a correlated normal prior on those
+        five in place of their default priors (``prior`` then sets ``phi``, ``h``,
+        ``beta`` and the pose only; ``docs/calibration.md``, "From a camera
+        calibration to the laser"). The start is the camera's intrinsics.
 
     Returns
     -------
@@ -168,6 +175,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     True
     """
     model = check_model(model)
+    prior = as_prior(prior, camera)
     if model == "misaligned" and not estimate_points:
         raise NotImplementedError("model='misaligned' needs the points estimated "
                                   "(estimate_points=True, or a FloorPlan)")
@@ -189,7 +197,6 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")
-    prior = prior if isinstance(prior, Prior) else Prior(prior)
     init = _resolve_init(init, prior)
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")

@@ -16,6 +16,16 @@ works with the prior of ``theta`` with ``phi`` integrated out::
 (``1/s^2`` is the Jacobian of ``(gu, gv) -> (alpha_u, alpha_v)``), computed by
 quadrature over the quantiles of ``p_phi``; ``phi`` is then drawn from its
 exact conditional given each ``theta`` sample.
+
+A camera calibrated beforehand (``Prior(camera=...)``, e.g. the result of
+:func:`bayescal.calibrate_camera`) replaces the priors of the five camera
+coordinates ``(xi, gamma_u, gamma_v, u0, v0)`` by one correlated normal, its
+intrinsics and their covariance. ``phi`` keeps its own prior, independent of
+``theta`` (it still fixes the phi/alpha ridge), so that::
+
+    p(theta, phi) = N(theta_cam; m, C) p_h p_beta p_phi(phi),   xi + phi > 0
+
+and ``alpha_u = gamma_u / (xi + phi)``, ``alpha_v`` likewise, follow from them.
 """
 
 from __future__ import annotations
@@ -25,10 +35,19 @@ from scipy import stats
 from scipy.special import logsumexp
 
 from .._validation import resolve_rng
-from ..sensor.parameters import PARAM_NAMES, SensorParams
+from ..sensor.parameters import (
+    PARAM_NAMES,
+    SensorParams,
+    camera_moments,
+    from_identifiable,
+    identifiable_jacobian,
+    to_identifiable,
+)
 from ..sensor.pose import POSE_NAMES
 
-__all__ = ["default_prior", "default_pose_prior", "Prior", "POSE_TOLERANCES"]
+__all__ = ["default_prior", "default_pose_prior", "Prior", "POSE_TOLERANCES", "as_prior"]
+#: the paper parameters whose own priors a camera prior replaces
+_CAMERA_PAPER = ("xi", "alpha_u", "alpha_v", "u0", "v0")
 
 #: default tolerances (one standard deviation) around the design values
 DEFAULT_TOLERANCES = {
@@ -121,6 +140,36 @@ def default_prior(nominal=None):
     return out
 
 
+def as_prior(prior=None, camera=None, *, nominal=None):
+    """``prior`` as a :class:`Prior`, with the camera's prior when ``camera`` is given.
+
+    Parameters
+    ----------
+    prior : dict or Prior, optional
+    camera : object or tuple, optional
+        A camera calibration (:func:`~bayescal.sensor.parameters.camera_moments`).
+    nominal : SensorParams, optional
+    """
+    if isinstance(prior, Prior) and camera is None:
+        return prior
+    return Prior(prior, nominal=nominal, camera=camera)
+
+
+def _camera_marginals(mean, cov, phi):
+    """Normal marginals of ``xi, alpha_u, alpha_v, u0, v0`` implied by the camera's normal
+    and ``phi``'s prior (alpha to first order, at phi's mean): for summaries and starts."""
+    mp, vp = float(phi.mean()), float(phi.var())
+    s = mean[0] + mp
+    out = {n: stats.norm(mean[k], np.sqrt(cov[k, k])) for n, k in (("xi", 0), ("u0", 3),
+                                                                      ("v0", 4))}
+    for name, k in (("alpha_u", 1), ("alpha_v", 2)):
+        g = np.array([-mean[k] / s**2, 1.0 / s])          # d alpha / d (xi, gamma)
+        sub = cov[np.ix_([0, k], [0, k])]
+        var = g @ sub @ g + (mean[k] / s**2) ** 2 * vp
+        out[name] = stats.norm(mean[k] / s, np.sqrt(var))
+    return out
+
+
 def _check_dist(name, dist):
     if isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
         raise TypeError(f"prior[{name!r}] must be a frozen scipy.stats distribution, got the "
@@ -145,13 +194,25 @@ class Prior:
         Design values for the defaults.
     n_phi : int, optional
         Quadrature nodes over ``phi`` (default 64).
+    camera : object or tuple, optional
+        A camera calibration (``bc.calibrate_camera(views)``, a camera posterior, or
+        ``(mean, cov)``; :func:`~bayescal.sensor.parameters.camera_moments`): its
+        intrinsics and covariance become one correlated normal prior on ``(xi,
+        gamma_u, gamma_v, u0, v0)`` in place of the priors of ``xi, alpha_u, alpha_v,
+        u0, v0`` (which ``prior`` must then leave out); ``phi``, ``h``, ``beta`` keep
+        theirs.
 
     Attributes
     ----------
     dists : dict
-        The eight frozen distributions, keyed by :data:`~bayescal.PARAM_NAMES`.
+        The eight frozen distributions, keyed by :data:`~bayescal.PARAM_NAMES`. With
+        a camera, those of ``xi, alpha_u, alpha_v, u0, v0`` are the normal marginals
+        the camera implies (alpha's to first order): summaries and starts read them,
+        the densities use the camera's joint normal.
     pose_dists : dict
         The four of the laser pose, keyed by ``POSE_NAMES`` (misaligned model).
+    camera : tuple or None
+        ``(mean (5,), cov (5, 5))`` of the camera prior, order ``xi, gamma_u, gamma_v, u0, v0``.
 
     Examples
     --------
@@ -162,12 +223,21 @@ class Prior:
     (210.0, 1.0)
     """
 
-    def __init__(self, prior=None, *, nominal=None, n_phi=64):
+    def __init__(self, prior=None, *, nominal=None, n_phi=64, camera=None):
         dists = default_prior(nominal)
         pose = default_pose_prior()
+        if isinstance(prior, Prior):
+            camera = prior.camera if camera is None else camera
+            skip = _CAMERA_PAPER if prior.camera is not None else ()
+            prior = {**{k: v for k, v in prior.dists.items() if k not in skip},
+                     **prior.pose_dists}
+        if camera is not None:
+            clash = sorted(set(prior or {}) & set(_CAMERA_PAPER))
+            if clash:
+                raise ValueError(f"prior gives {', '.join(clash)} and camera is given: the "
+                                 "camera's prior replaces those of xi, alpha_u, alpha_v, u0, "
+                                 "v0; leave them out of prior")
         if prior is not None:
-            if isinstance(prior, Prior):
-                prior = {**prior.dists, **prior.pose_dists}
             if not isinstance(prior, dict):
                 raise TypeError(f"prior must be a dict {{name: scipy.stats frozen distribution}}, "
                                 f"got {type(prior).__name__}")
@@ -177,6 +247,13 @@ class Prior:
                                  f"expected any of {PARAM_NAMES + POSE_NAMES}")
             for k, v in prior.items():
                 (pose if k in POSE_NAMES else dists)[k] = _check_dist(k, v)
+        self.camera = None
+        if camera is not None:
+            mean, cov = camera_moments(camera)
+            self.camera = (mean, cov)
+            self._cam_white = np.linalg.inv(np.linalg.cholesky(cov))    # r = W (x - m)
+            self._cam_norm = -0.5 * (np.linalg.slogdet(cov)[1] + 5 * np.log(2 * np.pi))
+            dists.update(_camera_marginals(mean, cov, dists["phi"]))
         self.dists = dists
         self.pose_dists = pose
         # normal priors are evaluated in closed form (scipy's per-call overhead dominated
@@ -206,12 +283,18 @@ class Prior:
     def pose_residuals(self, pose, *, jacobian=False):
         """The pose prior as whitened residuals (4,) (and their diagonal Jacobian (4, 4)),
         as :meth:`residuals` does for the eight parameters."""
-        return _whitened(self.pose_dists, POSE_NAMES, pose, jacobian)
+        return _whitened(self.pose_dists, POSE_NAMES, pose, jacobian, self._normal)
 
     # -- paper parameters -------------------------------------------------
     def logpdf(self, a):
         """Log prior density of paper parameters ``a``, shape (..., 8) -> (...)."""
         a = np.asarray(a, dtype=float)
+        if self.camera is not None:       # the density of (theta, phi) times |d(theta, phi)/da|
+            s = a[..., 0] + a[..., 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lp = (self._camera_logpdf(to_identifiable(a)) + self._logpdf("phi", a[..., 1])
+                      + 2.0 * np.log(np.abs(s)))
+            return np.where(s > 0, lp, -np.inf)
         out = np.zeros(a.shape[:-1])
         for k, name in enumerate(PARAM_NAMES):
             out = out + self._logpdf(name, a[..., k])
@@ -239,6 +322,10 @@ class Prior:
         for _ in range(1000):
             for k, name in enumerate(PARAM_NAMES):
                 out[todo, k] = self.dists[name].rvs(size=len(todo), random_state=rng)
+            if self.camera is not None:       # the camera's five, jointly normal
+                th = to_identifiable(out[todo])
+                th[:, :5] = rng.multivariate_normal(*self.camera, size=len(todo))
+                out[todo] = from_identifiable(th, out[todo, 1])
             ok = _physical(out[todo])
             todo = todo[~ok]
             if todo.size == 0:
@@ -269,6 +356,12 @@ class Prior:
         ndarray, shape (...)
         """
         theta = np.asarray(theta, dtype=float)
+        if self.camera is not None:
+            # phi independent of theta: integrating it out leaves P(xi + phi > 0)
+            out = (self._camera_logpdf(theta)
+                   + np.asarray(self.dists["phi"].logsf(-theta[..., 0]), dtype=float))
+            ok = (theta[..., 5] > 0) & (theta[..., 6] > 0) & (theta[..., 6] < np.pi / 2)
+            return np.where(ok & np.isfinite(out), out, -np.inf)
         out = (self._logpdf("xi", theta[..., 0]) + self._logpdf("u0", theta[..., 3])
                + self._logpdf("v0", theta[..., 4]) + self._logpdf("h", theta[..., 5])
                + self._logpdf("beta", theta[..., 6]))
@@ -286,6 +379,10 @@ class Prior:
         """
         rng = resolve_rng(rng)
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        if self.camera is not None:          # phi's own prior, truncated to xi + phi > 0
+            lo = np.asarray(self.dists["phi"].cdf(-theta[:, 0]), dtype=float)
+            u = lo + (1.0 - lo) * rng.random(len(theta))
+            return np.asarray(self.dists["phi"].ppf(u), dtype=float)
         phi = self._phi_nodes
         lp = self._alpha_terms(theta, phi)
         lp = lp - lp.max(axis=-1, keepdims=True)
@@ -313,20 +410,72 @@ class Prior:
         Returns
         -------
         r : ndarray, shape (8,)
-        J : ndarray, shape (8, 8), diagonal (only with ``jacobian=True``)
+        J : ndarray, shape (8, 8), diagonal (only with ``jacobian=True``; with a
+            camera, full: its rows are those of :meth:`theta_residuals`)
         """
-        return _whitened(self.dists, PARAM_NAMES, a, jacobian)
+        if self.camera is None:
+            return _whitened(self.dists, PARAM_NAMES, a, jacobian, self._normal)
+        a = np.asarray(a, dtype=float)
+        theta, phi = to_identifiable(a), a[1]
+        if not jacobian:
+            return self.theta_residuals(theta, phi)
+        r, J = self.theta_residuals(theta, phi, jacobian=True)
+        return r, J @ np.linalg.inv(identifiable_jacobian(theta, phi))
+
+    def theta_residuals(self, theta, phi, *, jacobian=False):
+        """The prior as eight whitened residuals at ``(theta, phi)`` (for least squares).
+
+        Without a camera, :meth:`residuals` at the paper parameters; with one, the
+        camera's five rows ``W (theta[:5] - m)`` (``W`` the inverse Cholesky factor of
+        its covariance, so that their squares sum to the Mahalanobis distance), then
+        ``phi``, ``h``, ``beta``.
+
+        Parameters
+        ----------
+        theta : ndarray, shape (7,)
+        phi : float
+
+        Returns
+        -------
+        r : ndarray, shape (8,)
+        J : ndarray, shape (8, 8)
+            ``dr / d(theta, phi)`` (``phi`` last; only with ``jacobian=True``).
+        """
+        theta = np.asarray(theta, dtype=float)
+        if self.camera is None:
+            a = from_identifiable(theta, phi)
+            if not jacobian:
+                return self.residuals(a)
+            r, D = self.residuals(a, jacobian=True)
+            return r, D @ identifiable_jacobian(theta, phi)
+        rc = self._cam_white @ (theta[:5] - self.camera[0])
+        rest = _whitened(self.dists, ("phi", "h", "beta"), [phi, theta[5], theta[6]], jacobian,
+                         self._normal)
+        if not jacobian:
+            return np.concatenate([rc, rest])
+        J = np.zeros((8, 8))
+        J[:5, :5] = self._cam_white
+        J[5, 7], J[6, 5], J[7, 6] = np.diag(rest[1])
+        return np.concatenate([rc, rest[0]]), J
+
+    def _camera_logpdf(self, theta):
+        """``log N(theta[..., :5]; m, C) + log p_h + log p_beta``, shape (..., 7) -> (...)."""
+        z = (theta[..., :5] - self.camera[0]) @ self._cam_white.T
+        return (self._cam_norm - 0.5 * np.sum(z * z, axis=-1)
+                + self._logpdf("h", theta[..., 5]) + self._logpdf("beta", theta[..., 6]))
 
 
-def _whitened(dists, names, a, jacobian):
-    """Whitened prior residuals of independent priors ``dists`` at ``a`` (len(names),)."""
+def _whitened(dists, names, a, jacobian, normal=None):
+    """Whitened prior residuals of independent priors ``dists`` at ``a`` (len(names),);
+    ``normal``: ``{name: (mean, sd)}`` of the normal ones, read instead of scipy's."""
     a = np.asarray(a, dtype=float)
     r = np.empty(len(names))
     d = np.empty(len(names))
+    normal = {} if normal is None else normal
     for k, name in enumerate(names):
         dist = dists[name]
-        if getattr(dist.dist, "name", "") == "norm":
-            mu, sd = dist.mean(), dist.std()
+        if name in normal or getattr(dist.dist, "name", "") == "norm":
+            mu, sd = normal[name] if name in normal else (dist.mean(), dist.std())
             r[k] = (a[k] - mu) / sd
             d[k] = 1.0 / sd
         else:

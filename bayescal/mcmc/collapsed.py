@@ -163,6 +163,16 @@ def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stac
     warnings.warn(msg, NotConvergedWarning, stacklevel=stacklevel + 1)
 
 
+def _camera_holds_gamma(prior, cov_psi):
+    """Whether a camera prior, not the laser data, holds ``gamma``: the Laplace sd of
+    ``gamma_u`` at least half the camera's. The ring radii are then no longer what the
+    data pin, and the sampler keeps ``gamma`` and ``h`` (``Coordinates(ring=False)``):
+    with a camera 1000x tighter than the data the ring coordinates made tau 9-34 (1000
+    mm room, 40 points), the identifiable ones 2.5-3."""
+    cam = getattr(prior, "camera", None)
+    return cam is not None and np.sqrt(cov_psi[1, 1]) >= 0.5 * np.sqrt(cam[1][1, 1])
+
+
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                      moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None):
@@ -208,7 +218,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     walls = lik.wall_coordinates() if pose and hasattr(lik, "wall_coordinates") else None
     coords = Coordinates(rho_ref,
                          7 + names.index("outlier_frac") if "outlier_frac" in names else None,
-                         pose=pose, walls=walls)
+                         pose=pose, walls=walls, ring=not _camera_holds_gamma(prior, cov_psi_map))
     target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
     if n_tune is None:
         # HMC mixes fast: short tuning rounds suffice (tune_proposal pools the last two

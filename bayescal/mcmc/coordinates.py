@@ -145,9 +145,15 @@ class Coordinates:
         With ``pose`` on a floor plan: psi's indices of the walls' distances, and the
         plan's nominal distances and normal azimuths, each (W,). Each distance is
         sampled as ``d - wall_shift . pose`` (:func:`wall_shift`).
+    ring : bool
+        Sample the ring radii and ``H`` (default); ``False`` keeps ``gamma_u``,
+        ``gamma_v`` and ``h`` themselves: for a camera calibrated beforehand whose
+        prior, not the laser data, holds ``(xi, gamma)``, the ring radius would then
+        bend with ``(h, beta)`` (``docs/calibration.md``, "From a camera calibration
+        to the laser").
     """
 
-    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, walls=None):
+    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, walls=None, ring=True):
         rho_ref = float(np.inf if rho_ref is None else rho_ref)
         if not rho_ref > 0:
             raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
@@ -159,11 +165,19 @@ class Coordinates:
         if walls is not None and not self.pose:
             raise ValueError("the walls' coordinates need pose=True (they follow the pose)")
         self.walls = None if walls is None else tuple(np.asarray(w) for w in walls)
+        self.ring = bool(ring)
 
     def __repr__(self):
         walls = "" if self.walls is None else f", walls={len(self.walls[0])}"
+        ring = "" if self.ring else ", ring=False"
         return (f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index}, "
-                f"pose={self.pose}{walls})")
+                f"pose={self.pose}{walls}{ring})")
+
+    def _scales(self, psi):
+        """``(ring_scale, depth_scale)`` of psi, or ones with ``ring=False``."""
+        if not self.ring:
+            return np.ones(psi.shape[:-1]), np.ones(psi.shape[:-1])
+        return ring_scale(psi, self.rho_ref), depth_scale(psi)
 
     def _shift(self, psi):
         """``pose_shift . pose`` (..., 2) of psi (its xi, gamma, h, beta and pose)."""
@@ -181,10 +195,10 @@ class Coordinates:
             s[..., self.walls[0]] -= self._wall_shift(s)
         if self.pose:
             s[..., 3:5] += self._shift(s)
-        k = ring_scale(s, self.rho_ref)
+        k, c = self._scales(s)
         s[..., 1] *= k
         s[..., 2] *= k
-        s[..., 5] *= depth_scale(s)
+        s[..., 5] *= c
         if self.frac_index is not None:
             s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
         return s
@@ -192,8 +206,8 @@ class Coordinates:
     def from_sampling(self, s):
         """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
         psi = np.array(s, dtype=float)
-        psi[..., 5] /= depth_scale(psi)
-        k = ring_scale(psi, self.rho_ref)
+        psi[..., 5] /= self._scales(psi)[1]
+        k = self._scales(psi)[0]
         psi[..., 1] /= k
         psi[..., 2] /= k
         if self.pose:
@@ -209,8 +223,8 @@ class Coordinates:
     def log_jacobian(self, psi):
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = (-2.0 * np.log(ring_scale(psi, self.rho_ref))
-                   - np.log(np.abs(depth_scale(psi))))
+            k, c = self._scales(psi)
+            out = -2.0 * np.log(k) - np.log(np.abs(c))
             if self.frac_index is not None:
                 # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
                 y = np.cbrt(expit(psi[..., self.frac_index]))

@@ -26,7 +26,7 @@ import numpy as np
 from .._validation import resolve_rng
 from ..fit.plan_start import plan_map_start
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
-from ..likelihood.priors import Prior
+from ..likelihood.priors import as_prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
@@ -44,7 +44,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                           init=None, moves=None, progress=True, on_unconverged="warn",
                           n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED,
                           outliers=True, outlier_scale=OUTLIER_SCALE,
-                          outlier_prior=OUTLIER_PRIOR, pixel_cov=None, model="aligned"):
+                          outlier_prior=OUTLIER_PRIOR, pixel_cov=None, model="aligned",
+                          camera=None):
     """Sample the posterior of the sensor, the walls of a rough plan and every laser point.
 
     Parameters
@@ -57,7 +58,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         Pixel noise, px; ``None`` infers it (log-uniform prior on
         ``NOISE_BOUNDS["sigma_px"]``).
     prior, rng, n_walkers, min_ess, tau_factor, max_steps, n_samples, init, moves,
-    progress, on_unconverged, n_point_mh, n_iter :
+    progress, on_unconverged, n_point_mh, n_iter, camera :
         As in :func:`bayescal.sample_posterior`.
     n_tune : int, optional
         Steps per round of the proposal tuning (default: the sampler's).
@@ -99,7 +100,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         + bool(outliers)
     check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
-    prior = prior if isinstance(prior, Prior) else Prior(prior)
+    prior = as_prior(prior, camera)
     psi_map, cov_map, q_map, map_res = plan_map_start(pixels, plan, sigma_px=sigma_px,
                                                       prior=prior, init=init,
                                                       outliers=outliers,

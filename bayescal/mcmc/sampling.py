@@ -35,7 +35,7 @@ import numpy as np
 from .._validation import resolve_rng
 from ..fit.simultaneous import check_model, point_likelihood
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
-from ..likelihood.priors import Prior
+from ..likelihood.priors import Prior, as_prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
@@ -62,7 +62,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
-                     outliers=True, model="aligned", pixel_cov=None):
+                     outliers=True, model="aligned", pixel_cov=None, camera=None):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -134,6 +134,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         noise of pixel i is ``sigma_px^2 pixel_cov_i``, ``sigma_px`` a scale on them
         (1.0: as they are; ``None`` infers it with a FloorPlan, and is refused with
         approximate points), as in :func:`bayescal.calibrate_simultaneous`.
+    camera : object, optional
+        A camera calibrated beforehand (``bc.calibrate_camera(views)``, a camera
+        posterior, or ``(mean, cov)``): the correlated normal prior of ``xi, gamma_u,
+        gamma_v, u0, v0``, as in :func:`bayescal.calibrate_simultaneous`; the log
+        prior of every sampled state carries it.
 
     Returns
     -------
@@ -153,8 +158,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
+    prior = as_prior(prior, camera)
     if isinstance(approx_points, FloorPlan):          # walls in place of points
-        kw = {k: v for k, v in locals().items() if k not in ("pixels", "approx_points")}
+        kw = {k: v for k, v in locals().items()
+              if k not in ("pixels", "approx_points", "camera")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
@@ -162,7 +169,6 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     from ..fit.simultaneous import calibrate_simultaneous
 
     rng = resolve_rng(rng)
-    prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = point_likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
                            sigma_scene=sigma_scene, outliers=outliers, pixel_cov=pixel_cov)
     ndim = 7 + len(lik.extra_names)

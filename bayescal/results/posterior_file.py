@@ -11,6 +11,7 @@ import pathlib
 import numpy as np
 from scipy import stats
 
+from ..likelihood.priors import Prior
 from ..scene.floorplan import FloorPlan
 from ..stats.chains import ChainDiagnostics
 
@@ -24,10 +25,24 @@ ARRAYS = ("param_samples", "point_samples", "noise_samples", "pixels", "approx_p
 
 
 def _prior_record(prior):
-    """``{name: [scipy distribution name, args, kwds]}`` of the eight and the pose's priors."""
-    return {name: [d.dist.name, [float(a) for a in d.args],
-                   {k: float(v) for k, v in d.kwds.items()}]
-            for name, d in {**prior.dists, **prior.pose_dists}.items()}
+    """``{name: [scipy distribution name, args, kwds]}`` of the eight and the pose's priors;
+    with a camera prior, its ``"camera": [mean, cov]`` in place of the five it replaces."""
+    skip = () if prior.camera is None else ("xi", "alpha_u", "alpha_v", "u0", "v0")
+    out = {name: [d.dist.name, [float(a) for a in d.args],
+                  {k: float(v) for k, v in d.kwds.items()}]
+           for name, d in {**prior.dists, **prior.pose_dists}.items() if name not in skip}
+    if prior.camera is not None:
+        out["camera"] = [prior.camera[0].tolist(), prior.camera[1].tolist()]
+    return out
+
+
+def _read_prior(record):
+    """The prior saved by :func:`_prior_record`: a dict, or a Prior with its camera."""
+    camera = record.pop("camera", None)
+    dists = {n: getattr(stats, d)(*args, **kwds) for n, (d, args, kwds) in record.items()}
+    if camera is None:
+        return dists
+    return Prior(dists, camera=(np.asarray(camera[0]), np.asarray(camera[1])))
 
 
 def save_posterior(post, path, *, overwrite=False):
@@ -83,7 +98,7 @@ def read_posterior(path):
         wall_samples = f["wall_samples"] if "wall_samples" in f else None
         outlier_prob = f["outlier_prob"] if "outlier_prob" in f else None
         plan_arrays = {k[5:]: f[k] for k in f.files if k.startswith("plan_")}
-    prior = {n: getattr(stats, d)(*args, **kwds) for n, (d, args, kwds) in meta["prior"].items()}
+    prior = _read_prior(meta["prior"])
     return dict(
         param_samples=arrays["param_samples"], point_samples=arrays["point_samples"],
         noise_samples=arrays["noise_samples"], noise_names=meta["noise_names"],

@@ -25,6 +25,8 @@ import numpy as np
 __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
+    "CAMERA_NAMES",
+    "camera_moments",
     "SensorParams",
     "as_param_array",
     "to_identifiable",
@@ -34,6 +36,8 @@ __all__ = [
 
 PARAM_NAMES = ("xi", "phi", "alpha_u", "alpha_v", "u0", "v0", "h", "beta")
 IDENTIFIABLE_NAMES = ("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta")
+#: the camera coordinates a camera calibration gives: the first five identifiable ones
+CAMERA_NAMES = IDENTIFIABLE_NAMES[:5]
 
 
 @dataclass(frozen=True)
@@ -203,3 +207,62 @@ def identifiable_jacobian(theta, phi):
     for k in (3, 4, 5, 6):                  # u0, v0, h, beta
         J[..., k + 1, k] = 1.0
     return J
+
+
+def camera_moments(camera):
+    """Mean and covariance of the camera intrinsics a camera calibration states.
+
+    Parameters
+    ----------
+    camera : object or tuple
+        A camera calibration: anything with ``intrinsics`` (a mapping with the keys
+        ``xi, gamma_u, gamma_v, u0, v0``) and ``covariance`` (a method or an array,
+        at least (5, 5), its first five rows and columns in that order, the board
+        poses integrated out), such as :func:`bayescal.calibrate_camera`'s result
+        or :func:`bayescal.sample_camera_posterior`'s; or a pair ``(mean, cov)``
+        of shapes (5,) and (5, 5) in that order (px for gamma and the centre).
+
+    Returns
+    -------
+    mean : ndarray, shape (5,)
+    cov : ndarray, shape (5, 5)
+        Symmetric and positive definite.
+
+    Raises
+    ------
+    TypeError
+        ``camera`` is none of these.
+    ValueError
+        A missing name, a non-finite value, a covariance of the wrong shape or not
+        positive definite, or ``xi < 0`` or a zero ``gamma``.
+    """
+    if isinstance(camera, tuple) and len(camera) == 2:
+        mean, cov = camera
+    else:
+        intr, cov = getattr(camera, "intrinsics", None), getattr(camera, "covariance", None)
+        if intr is None or cov is None:
+            raise TypeError("camera must be a camera calibration (with intrinsics and "
+                            "covariance(), e.g. bc.calibrate_camera(views)) or a pair "
+                            f"(mean (5,), cov (5, 5)), got {type(camera).__name__}")
+        missing = [n for n in CAMERA_NAMES if n not in intr]
+        if missing:
+            raise ValueError(f"camera.intrinsics has no {', '.join(missing)}; expected the "
+                             f"keys {', '.join(CAMERA_NAMES)}")
+        mean = [intr[n] for n in CAMERA_NAMES]
+        cov = cov() if callable(cov) else cov
+    mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+    if mean.shape != (5,) or cov.ndim != 2 or cov.shape[0] < 5 or cov.shape[0] != cov.shape[1]:
+        raise ValueError(f"camera: expected a mean of shape (5,) and a covariance of at least "
+                         f"(5, 5), got {mean.shape} and {cov.shape}")
+    cov = 0.5 * (cov[:5, :5] + cov[:5, :5].T)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+        raise ValueError("camera: the intrinsics and their covariance must be finite")
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        raise ValueError("camera: the covariance of (xi, gamma_u, gamma_v, u0, v0) is not "
+                         f"positive definite (variances {np.diag(cov)})") from None
+    if mean[0] < 0 or mean[1] == 0 or mean[2] == 0:
+        raise ValueError(f"camera: expected xi >= 0 and gamma_u, gamma_v nonzero, got "
+                         f"{dict(zip(CAMERA_NAMES, mean.tolist(), strict=True))}")
+    return mean, cov
