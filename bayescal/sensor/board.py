@@ -19,12 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import project_theta
+from .parameters import CAMERA_NAMES
 
 __all__ = ["CAMERA_NAMES", "POSE6_NAMES", "rotation_from_vector", "vector_from_rotation",
            "project_board"]
 
-#: the five camera intrinsics a board calibrates, in this order
-CAMERA_NAMES = ("xi", "gamma_u", "gamma_v", "u0", "v0")
 #: a view's pose: rotation vector (rad) then translation (mm), board frame -> frame C
 POSE6_NAMES = ("w_x", "w_y", "w_z", "t_x", "t_y", "t_z")
 
