@@ -12,6 +12,7 @@ from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
 from .errors import DegenerateInputError
+from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .image.chessboard import find_chessboard
@@ -21,6 +22,7 @@ from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
+from .results.camera import CameraResult, load_camera
 from .results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -48,6 +50,9 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "calibrate_camera",
+    "CameraResult",
+    "load_camera",
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
     "POSE_NAMES",
