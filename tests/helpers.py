@@ -73,15 +73,15 @@ def check_plan_residual_jacobians(lik, g, walls, t, sigma, numdiff, *, rows, dt_
 
 
 # A camera and board poses like the shared real views (1280x1024, 8 x 6 corners of 42 mm,
-# boards 330-420 mm away, 14-42 deg below the horizon): rotation vector (rad) and
-# translation (mm), board frame -> frame C.
-REAL_LIKE_CAMERA = {"xi": 1.134, "gamma_u": 317.8, "gamma_v": 318.0, "u0": 642.5, "v0": 522.9}
+# boards 330-420 mm away, 14-42 deg below the horizon), in the package's sign convention
+# (gamma_v < 0): rotation vector (rad) and translation (mm), board frame -> frame C.
+REAL_LIKE_CAMERA = {"xi": 1.134, "gamma_u": 317.8, "gamma_v": -318.0, "u0": 642.5, "v0": 522.9}
 REAL_LIKE_POSES = np.array([
-    [-0.79, -0.37, 0.95, 208.0, -336.0, -119.0],
-    [0.05, 0.02, 0.93, 219.0, -391.0, -286.0],
-    [0.0, 0.02, -0.69, 10.0, 269.0, -247.0],
-    [1.38, -0.26, -0.45, 35.0, 312.0, -172.0],
-    [1.83, -0.03, -0.65, 11.0, 425.0, -195.0],
+    [-2.0522, 1.1369, -0.44281, 208.0, 336.0, -119.0],
+    [2.7646, -1.3874, -0.029836, 219.0, 391.0, -286.0],
+    [2.9563, 1.0625, -0.030796, 10.0, -269.0, -247.0],
+    [1.6959, 0.47, 0.27156, 35.0, -312.0, -172.0],
+    [1.2206, 0.59749, 0.027576, 11.0, -425.0, -195.0],
 ])
 
 

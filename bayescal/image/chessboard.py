@@ -92,11 +92,16 @@ def order_corners(pixels, board, *, center):
 
 
 def _window(corners, nx, ny):
-    """Half-size of cornerSubPix's search window: within a square, at most 5 px."""
+    """Half-size of cornerSubPix's window: half the short corner spacing, 2-5 px.
+
+    The short spacing is the 10th percentile of the distances between neighbouring
+    corners (robust to one misplaced coarse corner): a wider window reaches the next
+    corner's edges, a narrower one averages fewer pixels.
+    """
     g = corners.reshape(ny, nx, 2)
-    spacing = min(np.linalg.norm(np.diff(g, axis=0), axis=-1).min(),
-                  np.linalg.norm(np.diff(g, axis=1), axis=-1).min())
-    return int(np.clip(spacing // 2.5, 2, 5))
+    gaps = np.concatenate([np.linalg.norm(np.diff(g, axis=0), axis=-1).ravel(),
+                           np.linalg.norm(np.diff(g, axis=1), axis=-1).ravel()])
+    return int(np.clip(np.percentile(gaps, 10) // 2, 2, 5))
 
 
 def _detect(cv2, img8, gray, nx, ny, method, window):

@@ -8,7 +8,7 @@ import bayescal as bc
 from bayescal.sensor.board import project_board
 
 # the real-like camera at a quarter of the size: any image size renders
-SMALL = {"xi": 1.134, "gamma_u": 79.5, "gamma_v": 79.5, "u0": 160.6, "v0": 130.7}
+SMALL = {"xi": 1.134, "gamma_u": 79.5, "gamma_v": -79.5, "u0": 160.6, "v0": 130.7}
 
 
 def test_truth_is_the_projection_and_the_image_is_reproducible():
