@@ -41,7 +41,7 @@ def camera_normal_equations(lik, k, poses, s2, t2):
     r, Jk, Jp = lik.residuals(k, poses, jacobian=True)
     G = np.concatenate([Jk, Jp, r[..., None]], axis=-1)
     Ninv, _ = lik.noise_factors(s2, t2)
-    return lik.products(G, G, s2, t2, Ninv)
+    return lik.products(G, s2, t2, Ninv)
 
 
 def _schur(P, lam=0.0):
@@ -82,7 +82,7 @@ def solve_camera(lik, k0, poses0, s2, t2, *, max_iter=100, xtol=1e-10):
     def cost_of(step):
         r = lik.residuals(k + step[0], poses + step[1])
         Ninv, _ = lik.noise_factors(s2, t2)
-        c = 0.5 * np.sum(lik.products(r[..., None], r[..., None], s2, t2, Ninv))
+        c = 0.5 * np.sum(lik.products(r[..., None], s2, t2, Ninv))
         return c if np.isfinite(c) else np.inf
 
     P = camera_normal_equations(lik, k, poses, s2, t2)
@@ -109,16 +109,17 @@ def _noise_values(eta, K, model):
     return s * s, t * t
 
 
-def restricted_loglik(lik, G, eta, model):
+def restricted_loglik(lik, gram, eta, model):
     """REML log likelihood of the noise levels in the model linearised at ``G``.
 
-    ``G`` (K, 2M, 12) holds ``[Jk, Jp, r]``; ``k`` and the poses are integrated out
+    ``gram`` is ``lik.gram(G)`` of ``G`` (K, 2M, 12) = ``[Jk, Jp, r]``; ``k`` and the poses
+    are integrated out
     with flat priors, which makes the per-view noise levels unbiased for the
     degrees of freedom the fit uses.
     """
     s2, t2 = _noise_values(eta, lik.K, model)
     Ninv, logdet = lik.noise_factors(s2, t2)
-    P = lik.products(G, G, s2, t2, Ninv)
+    P = lik.weighted(*gram, s2, t2, Ninv)
     S, rhs, Cinv, B, gp = _schur(P)
     try:
         quad = (P[:, 11, 11].sum() - np.einsum("ki,kij,kj->", gp, Cinv, gp)
@@ -139,20 +140,20 @@ def _n_eta(K, model):
 def estimate_noise(lik, k, poses, eta0, model):
     """Maximise :func:`restricted_loglik` over the log noise levels (linearised at k, poses)."""
     r, Jk, Jp = lik.residuals(k, poses, jacobian=True)
-    G = np.concatenate([Jk, Jp, r[..., None]], axis=-1)
+    gram = lik.gram(np.concatenate([Jk, Jp, r[..., None]], axis=-1))
     lo, hi = np.log(NOISE_BOUNDS)
-    res = minimize(lambda e: -restricted_loglik(lik, G, e, model), eta0, method="L-BFGS-B",
+    res = minimize(lambda e: -restricted_loglik(lik, gram, e, model), eta0, method="L-BFGS-B",
                    bounds=[(lo, hi)] * len(eta0))
-    return res.x, G
+    return res.x, gram
 
 
-def _noise_hessian(lik, G, eta, model, h=1e-3):
+def _noise_hessian(lik, gram, eta, model, h=1e-3):
     """Hessian of -REML in the noise levels (natural units, px) by central differences."""
     x = np.exp(eta)
     n = len(x)
 
     def f(v):
-        return -restricted_loglik(lik, G, np.log(np.maximum(v, 1e-12)), model)
+        return -restricted_loglik(lik, gram, np.log(np.maximum(v, 1e-12)), model)
 
     H = np.empty((n, n))
     e = np.eye(n) * h * x
@@ -196,7 +197,9 @@ def _fit_noise_loop(lik, k, poses, model, max_outer):
     eta = np.full(_n_eta(lik.K, model), np.log(max(rms, 1e-3)))
     s2, t2 = _noise_values(eta, lik.K, model)
     for _ in range(max_outer):
+        lik.set_basis(k, poses)
         k, poses, P, _ = solve_camera(lik, k, poses, s2, t2)
+        lik.set_basis(k, poses)
         new, G = estimate_noise(lik, k, poses, eta, model)
         done = np.max(np.abs(new - eta)) < 1e-4
         eta = new
@@ -207,8 +210,8 @@ def _fit_noise_loop(lik, k, poses, model, max_outer):
     return k, poses, eta, P
 
 
-def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=2, init=None,
-                     signs=(1.0, -1.0), max_outer=20):
+def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=2,
+                     basis="poly", init=None, signs=(1.0, -1.0), max_outer=20):
     """Calibrate the camera's five intrinsics from chessboard views (least squares).
 
     Parameters
@@ -223,6 +226,8 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
         systematic displacement field (default), per-view noise only, or one noise level.
     degree : int
         Degree of the per-view systematic field (default 2).
+    basis : {"poly", "intrinsics"}
+        Shape of the systematic field (:class:`~bayescal.likelihood.boards.BoardLikelihood`).
     init : dict or array_like, optional
         Start intrinsics ``{xi, gamma_u, gamma_v, u0, v0}`` (default: the scan of
         :func:`~bayescal.fit.camera_start.start_camera`).
@@ -241,7 +246,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     if noise not in NOISE_MODELS:
         raise ValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
     size = _image_size(views, image_size)
-    lik = BoardLikelihood(views, degree=degree)
+    lik = BoardLikelihood(views, degree=degree, basis=basis)
     fixed = None
     if init is not None:
         fixed = np.array([init[n] for n in CAMERA_NAMES] if isinstance(init, dict) else init,
@@ -262,18 +267,17 @@ def _result(lik, k, poses, eta, P, noise, size):
     r = lik.residuals(k, poses).reshape(lik.K, lik.M, 2)
     res = [r[j][lik.mask[j]] for j in range(lik.K)]
     rr, Jk, Jp = lik.residuals(k, poses, jacobian=True)
-    G = np.concatenate([Jk, Jp, rr[..., None]], axis=-1)
-    noise_cov = _noise_cov(lik, G, eta, noise)
+    noise_cov = _noise_cov(lik, lik.gram(np.concatenate([Jk, Jp, rr[..., None]], -1)), eta, noise)
     bad = [lik.names[j] for j in range(lik.K) if not np.all(np.isfinite(res[j]))]
     if bad or not np.all(np.isfinite(cov)):
         raise DegenerateInputError(f"the fit failed on view(s) {', '.join(bad) or 'all'}")
     return CameraResult(k, cov, poses, res, lik.names, noise=noise, sigma=np.sqrt(s2),
                         tau=np.sqrt(t2), image_size=size, pose_cov=pose_cov,
-                        noise_cov=noise_cov, info={"degree": lik.degree})
+                        noise_cov=noise_cov, info={"degree": lik.degree, "basis": lik.basis})
 
 
-def _noise_cov(lik, G, eta, noise):
-    H = _noise_hessian(lik, G, eta, noise)
+def _noise_cov(lik, gram, eta, noise):
+    H = _noise_hessian(lik, gram, eta, noise)
     try:
         return np.linalg.inv(H)
     except np.linalg.LinAlgError:

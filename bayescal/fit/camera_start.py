@@ -85,7 +85,7 @@ def _cost_at(lik, k, poses, n_steps):
     return np.sum(r * r, axis=-1), poses
 
 
-def start_camera(lik, image_size, *, signs=(1.0, -1.0), n_grid=24, n_steps=4, fixed=None):
+def start_camera(lik, image_size, *, signs=(1.0, -1.0), n_grid=16, n_steps=3, fixed=None):
     """Start values for the intrinsics and every view's pose.
 
     Parameters

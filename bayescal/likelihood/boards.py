@@ -62,9 +62,13 @@ class BoardLikelihood:
     views : sequence of BoardView
     degree : int
         Degree of the per-view displacement field (2: 12 columns per view).
+    basis : {"poly", "intrinsics"}
+        The systematic field's shape: polynomials over the board, or the view's own
+        derivatives of the pixels in the five intrinsics (a per-view error of the
+        effective intrinsics; set by :meth:`set_basis`).
     """
 
-    def __init__(self, views, *, degree=2):
+    def __init__(self, views, *, degree=2, basis="poly"):
         views = list(views)
         if not views or not all(isinstance(v, BoardView) for v in views):
             raise TypeError("views must be a non-empty sequence of BoardView")
@@ -77,7 +81,10 @@ class BoardLikelihood:
         self.pixels = np.zeros((self.K, M, 2))
         self.points = np.zeros((self.K, M, 3))
         self.degree = int(degree)
-        p = (self.degree + 1) * (self.degree + 2)
+        if basis not in ("poly", "intrinsics"):
+            raise ValueError(f"basis must be 'poly' or 'intrinsics', got {basis!r}")
+        self.basis = basis
+        p = (self.degree + 1) * (self.degree + 2) if basis == "poly" else 5
         self.B = np.zeros((self.K, 2 * M, p))
         for k, v in enumerate(views):
             m = v.n_corners
@@ -85,10 +92,21 @@ class BoardLikelihood:
             self.pixels[k, :m] = v.pixels
             self.points[k, :m] = v.points
             self.points[k, m:] = v.points[0]
-            self.B[k, :2 * m] = _basis(v.points, self.degree)
+            if basis == "poly":
+                self.B[k, :2 * m] = _basis(v.points, self.degree)
         self.n_obs = 2 * self.mask.sum(axis=1)                       # (K,)
         self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
         self._w = np.repeat(self.mask, 2, axis=1).astype(float)     # (K, 2M)
+
+    def set_basis(self, intrinsics, poses):
+        """With ``basis="intrinsics"``: the field's columns are each view's pixel derivatives
+        in the five intrinsics at ``(intrinsics, poses)``, scaled to unit rms per corner."""
+        if self.basis != "intrinsics":
+            return
+        _, Jk, _ = self.residuals(intrinsics, poses, jacobian=True)
+        scale = np.sqrt(np.sum(Jk * Jk, axis=1, keepdims=True) / self.mask.sum(1)[:, None, None])
+        self.B = Jk / scale
+        self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
 
     # ------------------------------------------------------------------ model
     def residuals(self, intrinsics, poses, *, jacobian=False):
@@ -120,15 +138,20 @@ class BoardLikelihood:
         logdet = (self.n_obs - p) * np.log(s2) + np.linalg.slogdet(N)[1]
         return Ninv, logdet
 
-    def products(self, X, Y, s2, t2, Ninv):
-        """``X^T Sigma^-1 Y`` per view: X (..., K, 2M, a), Y (..., K, 2M, b) -> (..., K, a, b)."""
-        s2 = np.asarray(s2, float)
-        t2 = np.asarray(t2, float)[..., None]
-        XB = np.einsum("...na,...nj->...aj", X, self.B)
-        YB = XB if Y is X else np.einsum("...nb,...nj->...bj", Y, self.B)
-        XY = np.einsum("...na,...nb->...ab", X, Y)
-        corr = np.einsum("...aj,...jl,...bl->...ab", XB, Ninv, YB)
-        return (XY - t2[..., None, None] * corr) / s2[..., None, None]
+    def gram(self, G):
+        """``(G^T G, G^T B)`` per view: G (..., K, 2M, a) -> (..., K, a, a), (..., K, a, p)."""
+        Gt = np.swapaxes(G, -1, -2)
+        return Gt @ G, Gt @ self.B
+
+    def weighted(self, GG, GB, s2, t2, Ninv):
+        """``G^T Sigma^-1 G`` from :meth:`gram`'s output (Woodbury)."""
+        s2 = np.asarray(s2, float)[..., None, None]
+        t2 = np.asarray(t2, float)[..., None, None, None]
+        return (GG - t2 * (GB @ Ninv @ np.swapaxes(GB, -1, -2))) / s2
+
+    def products(self, G, s2, t2, Ninv):
+        """``G^T Sigma^-1 G`` per view: G (..., K, 2M, a) -> (..., K, a, a)."""
+        return self.weighted(*self.gram(G), s2, t2, Ninv)
 
     # --------------------------------------------------------- poses integrated
     def pose_laplace(self, intrinsics, poses, s2, t2, *, n_steps=2):
@@ -156,7 +179,7 @@ class BoardLikelihood:
         for _ in range(int(n_steps)):
             r, _, Jp = self.residuals(intrinsics, poses, jacobian=True)
             G = np.concatenate([Jp, r[..., None]], axis=-1)
-            P = self.products(G, G, s2, t2, Ninv)
+            P = self.products(G, s2, t2, Ninv)
             H, g, rr = P[..., :6, :6], P[..., :6, 6], P[..., 6, 6]
             step = np.linalg.solve(H, g[..., None])[..., 0]
             poses = poses - step
