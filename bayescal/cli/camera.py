@@ -109,6 +109,20 @@ def _crossval(job):
     return halves_chi2(list(job.views), splits, noise=job.noise)
 
 
+def _figures(folder, result, views, cv):
+    """The report's figures as (caption, PNG path) pairs."""
+    from ..plotting.basic import savefig
+    from ..plotting.camera_cv import plot_halves_chi2
+
+    figs = []
+    if cv is not None:
+        path = folder / "crossval.png"
+        savefig(plot_halves_chi2(cv), path)
+        figs.append(("Cross-validation: each split's chi-square per direction (2 expected) "
+                     "and the mean shift between the two halves' projections", path))
+    return figs
+
+
 def run_calibrate_camera(job, folder):
     """Calibrate, cross-validate and write the files listed in the module docstring."""
     import bayescal as bc
@@ -124,8 +138,9 @@ def run_calibrate_camera(job, folder):
     result.save(p / CAMERA_FILE)
     bc.write_views(p / CORNERS_FILE, job.views)
     names = [pathlib.Path(s).name for s in job.inputs]
-    files = [p / CAMERA_FILE, p / CORNERS_FILE]
-    files += write_camera_report(p, result, crossval=cv, inputs=names)
+    figures = _figures(p, result, job.views, cv)
+    files = [p / CAMERA_FILE, p / CORNERS_FILE, *(f for _, f in figures)]
+    files += write_camera_report(p, result, crossval=cv, inputs=names, figures=figures)
     folder.add(*files)
     print(result.summary())
     if cv is not None:

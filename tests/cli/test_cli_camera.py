@@ -52,6 +52,7 @@ def test_corners_file_with_cross_validation(tmp_path, capsys):
     assert "chi-square per direction" in capsys.readouterr().out
     report = (out / "camera_report.md").read_text()
     assert "## Cross-validation" in report and "0 1 / 2 3" in report
+    assert "crossval.png" in report and (out / "crossval.png").stat().st_size > 5000
     assert json.loads((out / "camera.json").read_text())["format"] == "bayescal-camera"
 
 
