@@ -3,8 +3,8 @@
 The detection is OpenCV's (``cv2.findChessboardCorners``, then ``cv2.cornerSubPix``), an
 optional dependency (``pip install bayescal[camera]``): a detector that decades of
 calibrations have exercised on blur, glare and distorted boards is worth more than a new one.
-``cv2.findChessboardCornersSB`` is available as ``method="sb"``; see ``docs/camera_images.md``
-for the two compared on real catadioptric views.
+``cv2.findChessboardCornersSB`` is available as ``method="sb"``; ``docs/camera_images.md``
+compares the two on rendered and real catadioptric views.
 
 A chessboard with an odd number of squares each way (an even number of inner corners, such
 as 8 x 6) looks the same turned by 180 degrees, and OpenCV lists its corners in either
