@@ -21,6 +21,7 @@ from .image.read import read_image
 from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
+from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
 from .results.camera import CameraResult, load_camera
 from .results.calibration import (
@@ -39,6 +40,7 @@ from .results.reconstruction import (
     reconstruct_frames,
 )
 from .scene.board_render import render_board
+from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
@@ -50,6 +52,8 @@ from .sensor.pose import POSE_NAMES, LaserPose
 __version__ = "0.1.0"
 
 __all__ = [
+    "simulate_views",
+    "sample_camera_posterior",
     "calibrate_camera",
     "CameraResult",
     "load_camera",

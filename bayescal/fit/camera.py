@@ -197,9 +197,7 @@ def _fit_noise_loop(lik, k, poses, model, max_outer):
     eta = np.full(_n_eta(lik.K, model), np.log(max(rms, 1e-3)))
     s2, t2 = _noise_values(eta, lik.K, model)
     for _ in range(max_outer):
-        lik.set_basis(k, poses)
         k, poses, P, _ = solve_camera(lik, k, poses, s2, t2)
-        lik.set_basis(k, poses)
         new, G = estimate_noise(lik, k, poses, eta, model)
         done = np.max(np.abs(new - eta)) < 1e-4
         eta = new
@@ -210,8 +208,8 @@ def _fit_noise_loop(lik, k, poses, model, max_outer):
     return k, poses, eta, P
 
 
-def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=2,
-                     basis="poly", init=None, signs=(1.0, -1.0), max_outer=20):
+def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=2, init=None,
+                     signs=(1.0, -1.0), max_outer=20):
     """Calibrate the camera's five intrinsics from chessboard views (least squares).
 
     Parameters
@@ -226,8 +224,6 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
         systematic displacement field (default), per-view noise only, or one noise level.
     degree : int
         Degree of the per-view systematic field (default 2).
-    basis : {"poly", "intrinsics"}
-        Shape of the systematic field (:class:`~bayescal.likelihood.boards.BoardLikelihood`).
     init : dict or array_like, optional
         Start intrinsics ``{xi, gamma_u, gamma_v, u0, v0}`` (default: the scan of
         :func:`~bayescal.fit.camera_start.start_camera`).
@@ -246,7 +242,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     if noise not in NOISE_MODELS:
         raise ValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
     size = _image_size(views, image_size)
-    lik = BoardLikelihood(views, degree=degree, basis=basis)
+    lik = BoardLikelihood(views, degree=degree)
     fixed = None
     if init is not None:
         fixed = np.array([init[n] for n in CAMERA_NAMES] if isinstance(init, dict) else init,
@@ -273,7 +269,7 @@ def _result(lik, k, poses, eta, P, noise, size):
         raise DegenerateInputError(f"the fit failed on view(s) {', '.join(bad) or 'all'}")
     return CameraResult(k, cov, poses, res, lik.names, noise=noise, sigma=np.sqrt(s2),
                         tau=np.sqrt(t2), image_size=size, pose_cov=pose_cov,
-                        noise_cov=noise_cov, info={"degree": lik.degree, "basis": lik.basis})
+                        noise_cov=noise_cov, info={"degree": lik.degree})
 
 
 def _noise_cov(lik, gram, eta, noise):

@@ -62,13 +62,9 @@ class BoardLikelihood:
     views : sequence of BoardView
     degree : int
         Degree of the per-view displacement field (2: 12 columns per view).
-    basis : {"poly", "intrinsics"}
-        The systematic field's shape: polynomials over the board, or the view's own
-        derivatives of the pixels in the five intrinsics (a per-view error of the
-        effective intrinsics; set by :meth:`set_basis`).
     """
 
-    def __init__(self, views, *, degree=2, basis="poly"):
+    def __init__(self, views, *, degree=2):
         views = list(views)
         if not views or not all(isinstance(v, BoardView) for v in views):
             raise TypeError("views must be a non-empty sequence of BoardView")
@@ -81,10 +77,9 @@ class BoardLikelihood:
         self.pixels = np.zeros((self.K, M, 2))
         self.points = np.zeros((self.K, M, 3))
         self.degree = int(degree)
-        if basis not in ("poly", "intrinsics"):
-            raise ValueError(f"basis must be 'poly' or 'intrinsics', got {basis!r}")
-        self.basis = basis
-        p = (self.degree + 1) * (self.degree + 2) if basis == "poly" else 5
+        if self.degree < 0:
+            raise ValueError(f"degree must be >= 0, got {degree!r}")
+        p = (self.degree + 1) * (self.degree + 2)
         self.B = np.zeros((self.K, 2 * M, p))
         for k, v in enumerate(views):
             m = v.n_corners
@@ -92,21 +87,10 @@ class BoardLikelihood:
             self.pixels[k, :m] = v.pixels
             self.points[k, :m] = v.points
             self.points[k, m:] = v.points[0]
-            if basis == "poly":
-                self.B[k, :2 * m] = _basis(v.points, self.degree)
+            self.B[k, :2 * m] = _basis(v.points, self.degree)
         self.n_obs = 2 * self.mask.sum(axis=1)                       # (K,)
         self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
         self._w = np.repeat(self.mask, 2, axis=1).astype(float)     # (K, 2M)
-
-    def set_basis(self, intrinsics, poses):
-        """With ``basis="intrinsics"``: the field's columns are each view's pixel derivatives
-        in the five intrinsics at ``(intrinsics, poses)``, scaled to unit rms per corner."""
-        if self.basis != "intrinsics":
-            return
-        _, Jk, _ = self.residuals(intrinsics, poses, jacobian=True)
-        scale = np.sqrt(np.sum(Jk * Jk, axis=1, keepdims=True) / self.mask.sum(1)[:, None, None])
-        self.B = Jk / scale
-        self.BtB = np.einsum("kni,knj->kij", self.B, self.B)
 
     # ------------------------------------------------------------------ model
     def residuals(self, intrinsics, poses, *, jacobian=False):

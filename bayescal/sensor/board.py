@@ -134,13 +134,17 @@ def project_board(intrinsics, pose, points, *, jacobian=False):
     pose = np.asarray(pose, dtype=float)
     p = np.asarray(points, dtype=float)
     theta = np.concatenate([k, np.zeros(k.shape[:-1] + (2,))], axis=-1)[..., None, :]
+    pT = np.swapaxes(p, -1, -2)                                       # (..., 3, M)
     if not jacobian:
         R = rotation_from_vector(pose[..., :3])
-        P = np.einsum("...ij,...mj->...mi", R, p) + pose[..., None, 3:]
+        P = np.swapaxes(R @ pT, -1, -2) + pose[..., None, 3:]
         return project_theta(theta, P)
     R, dR = rotation_from_vector(pose[..., :3], jacobian=True)
-    P = np.einsum("...ij,...mj->...mi", R, p) + pose[..., None, 3:]
+    P = np.swapaxes(R @ pT, -1, -2) + pose[..., None, 3:]
     uv, valid, dP, dth = project_theta(theta, P, jacobian=True)
-    dPdw = np.einsum("...ijk,...mj->...mik", dR, p)                 # (..., M, 3, 3)
+    # dP/dw_k = dR[..., k] p: (..., i, k, j) @ (3, M) -> (..., M, i, k)
+    sh = dR.shape[:-3]
+    dRp = np.swapaxes(dR, -1, -2).reshape(sh + (9, 3)) @ pT
+    dPdw = np.moveaxis(dRp.reshape(sh + (3, 3, dRp.shape[-1])), -1, -3)
     d_pose = np.concatenate([dP @ dPdw, dP], axis=-1)
     return uv, valid, dth[..., :5], d_pose

@@ -99,8 +99,7 @@ def _halves_of(view, how):
 
 def _predict_half(cam, view, fit_idx, pred_idx):
     """Prediction errors of a view's held-out corners and their covariance."""
-    lik = BoardLikelihood([view], degree=cam.info.get("degree", 2),
-                          basis=cam.info.get("basis", "poly"))
+    lik = BoardLikelihood([view], degree=cam.info.get("degree", 2))
     j = cam.view_names.index(view.name) if view.name in cam.view_names else None
     sig2 = float(np.median(cam.sigma) ** 2) if j is None else float(cam.sigma[j] ** 2)
     t2 = cam.tau ** 2
@@ -111,13 +110,6 @@ def _predict_half(cam, view, fit_idx, pred_idx):
     pose = pose_from_rays(rays, view.points[fit_idx])
     W11 = np.linalg.inv(Sigma[np.ix_(f, f)])
     for _ in range(10):
-        r, Jk, Jp = lik.residuals(cam.k, pose[None], jacobian=True)
-        H = Jp[0, f].T @ W11 @ Jp[0, f]
-        pose = pose - np.linalg.solve(H, Jp[0, f].T @ W11 @ r[0, f])
-    lik.set_basis(cam.k, pose[None])
-    Sigma = sig2 * np.eye(2 * view.n_corners) + t2 * lik.B[0] @ lik.B[0].T
-    W11 = np.linalg.inv(Sigma[np.ix_(f, f)])
-    for _ in range(3):
         r, Jk, Jp = lik.residuals(cam.k, pose[None], jacobian=True)
         H = Jp[0, f].T @ W11 @ Jp[0, f]
         pose = pose - np.linalg.solve(H, Jp[0, f].T @ W11 @ r[0, f])
