@@ -11,7 +11,8 @@ between halves of the views and writes, into ``--out``:
 ``corners.csv``
     the corners used, one line per corner (:func:`bayescal.load_views` reads it; pass it
     back with ``--corners`` to calibrate again without detecting);
-``camera_report.md``, ``camera_report.html`` and the report's PNG figures.
+``camera_report.md``, ``camera_report.html`` and the report's figures: ``view_residuals.png``,
+``image_residuals.png`` and (with 4 or more views) ``crossval.png``.
 """
 
 from __future__ import annotations
@@ -112,9 +113,15 @@ def _crossval(job):
 def _figures(folder, result, views, cv):
     """The report's figures as (caption, PNG path) pairs."""
     from ..plotting.basic import savefig
+    from ..plotting.camera import plot_image_residuals, plot_view_residuals
     from ..plotting.camera_cv import plot_halves_chi2
 
-    figs = []
+    figs = [("Residuals of each view (u and v pooled) against two of its noise sds",
+             folder / "view_residuals.png"),
+            ("Residuals over the image, magnified 100 times",
+             folder / "image_residuals.png")]
+    savefig(plot_view_residuals(result), figs[0][1])
+    savefig(plot_image_residuals(result, list(views)), figs[1][1])
     if cv is not None:
         path = folder / "crossval.png"
         savefig(plot_halves_chi2(cv), path)

@@ -39,6 +39,8 @@ def test_images_to_camera_json_and_report(boards, capsys):
     report = (out / "camera_report.md").read_text()
     assert "board_4.png" in report and "Cross-validation" not in report
     assert (out / "camera_report.html").stat().st_size > 1000
+    for png in ("view_residuals.png", "image_residuals.png"):
+        assert png in report and (out / png).stat().st_size > 5000
 
 
 def test_corners_file_with_cross_validation(tmp_path, capsys):

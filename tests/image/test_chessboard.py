@@ -1,5 +1,6 @@
 """find_chessboard: OpenCV's corners on rendered boards (known truth) and on the real views."""
 
+import os
 import pathlib
 import sys
 
@@ -12,7 +13,9 @@ from bayescal.image.chessboard import order_corners
 
 pytest.importorskip("cv2")
 
-REAL = pathlib.Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "para"
+# the shared real views: ../shared/data/para beside the repository, or $BAYESCAL_PARA_DIR
+REAL = pathlib.Path(os.environ.get("BAYESCAL_PARA_DIR") or
+                    pathlib.Path(__file__).resolve().parents[2].parent / "shared" / "data" / "para")
 CENTRE = (639.5, 511.5)   # centre of a 1280 x 1024 image
 
 # Corner accuracy required of the detector on a rendered board: 0.25 px at worst and
