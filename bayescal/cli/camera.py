@@ -22,7 +22,9 @@ import shlex
 import sys
 from dataclasses import dataclass
 
-from ..errors import DegenerateInputError, InputError, UsageError
+import numpy as np
+
+from ..errors import DegenerateInputError, Failure, InputError, UsageError
 from ..io.outputs import check_out
 from . import options as op
 from .jobs import _opts
@@ -131,7 +133,11 @@ def _figures(folder, result, views, cv):
 
 
 def run_calibrate_camera(job, folder):
-    """Calibrate, cross-validate and write the files listed in the module docstring."""
+    """Calibrate, cross-validate and write the files listed in the module docstring.
+
+    Returns None, or a failure message (exit 1, files kept) when a view's residual rms is
+    over 3x the median view's: wrong corners pull every intrinsic.
+    """
     import bayescal as bc
 
     from ..report.camera import write_camera_report
@@ -139,8 +145,10 @@ def run_calibrate_camera(job, folder):
     try:
         result = bc.calibrate_camera(list(job.views), noise=job.noise)
         cv = _crossval(job)
-    except (DegenerateInputError, InputError) as exc:
-        raise UsageError(str(exc)) from None
+    except (DegenerateInputError, InputError, ValueError) as exc:
+        raise UsageError(str(exc)) from None       # calibrate_camera names the bad view
+    except np.linalg.LinAlgError as exc:
+        raise Failure(f"the calibration broke down on these views ({exc})") from None
     p = folder.path
     result.save(p / CAMERA_FILE)
     bc.write_views(p / CORNERS_FILE, job.views)
@@ -155,3 +163,8 @@ def run_calibrate_camera(job, folder):
               f"(2 expected), {len(cv['chi2'])} split(s)")
     for f in files:
         print(f"wrote {job.out / f.name}")
+    suspect = result.model_check()["suspect"]
+    if suspect:
+        return (f"view(s) {', '.join(suspect)} fit over 3x worse than the median view; check "
+                "their corners (the outputs are kept for diagnosis)")
+    return None

@@ -103,3 +103,17 @@ def test_different_image_sizes_are_refused(boards, tmp_path, capsys):
     assert main(["calibrate-camera", str(paths[0]), str(tmp_path / "small.png"),
                  "--out", str(tmp_path / "cam")]) == 2
     assert "small.png is 700x560 px but" in capsys.readouterr().err
+
+
+def test_a_view_with_wrong_corners_fails_with_the_files_kept(tmp_path, capsys):
+    from bayescal.scene.boards import simulate_views
+
+    views, _ = simulate_views(n_views=4, rng=5)
+    rng = np.random.default_rng(0)
+    bad = bc.BoardView(views[2].pixels[rng.permutation(48)], views[2].points, name="shuffled")
+    bc.write_views(tmp_path / "c.csv", [views[0], views[1], bad, views[3]])
+    out = tmp_path / "cam"
+    assert main(["calibrate-camera", "--corners", str(tmp_path / "c.csv"), "--noise", "plain",
+                 "--no-cross-validation", "--out", str(out)]) == 1
+    assert "view(s) shuffled fit over 3x worse" in capsys.readouterr().err
+    assert (out / "camera.json").is_file() and "SUSPECT" in (out / "camera_report.md").read_text()
