@@ -23,7 +23,6 @@ from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
 from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
-from .results.camera import CameraResult, load_camera
 from .results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -31,6 +30,7 @@ from .results.calibration import (
     identifiability_report,
     load_result,
 )
+from .results.camera import CameraResult, load_camera
 from .results.metrics import reconstruction_error, reconstruction_errors
 from .results.posterior import Posterior, load_posterior
 from .results.reconstruction import (

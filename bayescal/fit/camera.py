@@ -86,10 +86,10 @@ def solve_camera(lik, k0, poses0, s2, t2, *, max_iter=100, xtol=1e-10):
         return c if np.isfinite(c) else np.inf
 
     P = camera_normal_equations(lik, k, poses, s2, t2)
-    it = 0
-    for it in range(1, max_iter + 1):
+    n_iter = 0
+    for n_iter in range(1, max_iter + 1):  # noqa: B007 (the count is returned)
         cost = 0.5 * P[:, 11, 11].sum()
-        step, new, lam, _ = damped_step(lambda lm: _step(P, lm), cost_of, cost, lam)
+        step, new, lam, _ = damped_step(lambda lm, P=P: _step(P, lm), cost_of, cost, lam)
         if step is None:
             break
         k, poses = k + step[0], poses + step[1]
@@ -98,7 +98,7 @@ def solve_camera(lik, k0, poses0, s2, t2, *, max_iter=100, xtol=1e-10):
         small = np.max(np.abs(step[0]) / (np.abs(k) + 1.0)) < xtol
         if small or cost - new < 1e-14 * max(cost, 1.0):
             break
-    return k, poses, P, it
+    return k, poses, P, n_iter
 
 
 def _noise_values(eta, K, model):
@@ -159,8 +159,9 @@ def _noise_hessian(lik, gram, eta, model, h=1e-3):
     e = np.eye(n) * h * x
     for i in range(n):
         for j in range(i, n):
-            H[i, j] = H[j, i] = (f(x + e[i] + e[j]) - f(x + e[i] - e[j])
-                                 - f(x - e[i] + e[j]) + f(x - e[i] - e[j])) / (4 * e[i, i] * e[j, j])
+            num = (f(x + e[i] + e[j]) - f(x + e[i] - e[j])
+                   - f(x - e[i] + e[j]) + f(x - e[i] - e[j]))
+            H[i, j] = H[j, i] = num / (4 * e[i, i] * e[j, j])
     return H
 
 
@@ -216,7 +217,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     ----------
     views : sequence of BoardView
         One or more views (every one is used; a view that cannot be fitted is an error
-        naming it).
+        naming it). A view's per-corner ``covariance`` is not used: the noise is inferred.
     image_size : tuple of int, optional
         ``(width, height)``, px (default: the views' own, else the corners' extent).
     noise : {"view-systematic", "per-view", "plain"}

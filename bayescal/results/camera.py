@@ -87,7 +87,7 @@ class CameraResult:
     @property
     def intrinsics(self):
         """``{xi, gamma_u, gamma_v, u0, v0}`` as floats."""
-        return {n: float(v) for n, v in zip(CAMERA_NAMES, self.k)}
+        return {n: float(v) for n, v in zip(CAMERA_NAMES, self.k, strict=True)}
 
     @property
     def noise_names(self):
@@ -117,7 +117,7 @@ class CameraResult:
 
     def std(self):
         """Standard deviations of the intrinsics as a dict."""
-        return {n: float(s) for n, s in zip(CAMERA_NAMES, np.sqrt(np.diag(self.cov)))}
+        return {n: float(s) for n, s in zip(CAMERA_NAMES, np.sqrt(np.diag(self.cov)), strict=True)}
 
     @property
     def theta(self):
@@ -175,7 +175,7 @@ class CameraResult:
             ``suspect``: names of views whose rms exceeds 3x the median (worth a look).
         """
         rows = []
-        for name, r, s in zip(self.view_names, self.residuals, self.sigma):
+        for name, r, s in zip(self.view_names, self.residuals, self.sigma, strict=True):
             lag = np.corrcoef(r[:-1].ravel(), r[1:].ravel())[0, 1] if len(r) > 2 else np.nan
             rows.append({"name": name, "n": len(r), "rms": float(np.sqrt(np.mean(r * r))),
                          "sigma": float(s), "lag1": float(lag)})

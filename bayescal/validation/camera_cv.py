@@ -21,7 +21,7 @@ from ..fit.camera import calibrate_camera
 from ..fit.camera_start import pose_from_rays
 from ..likelihood.boards import BoardLikelihood
 
-__all__ = ["halves_chi2", "heldout_chi2", "cv_directions", "all_splits"]
+__all__ = ["halves_chi2", "heldout_chi2", "cv_directions", "all_splits", "camera_coverage"]
 
 
 def cv_directions(result, *, radii=(150.0, 200.0, 250.0, 300.0), n_azimuth=16):
@@ -150,3 +150,39 @@ def heldout_chi2(views, *, how="interleaved", **fit_options):
         out.append(c / len(e))
         tot, n = tot + c, n + len(e)
     return {"chi2": np.array(out), "pooled": tot / n}
+
+
+def camera_coverage(n_rep, *, level=0.9, rng=None, simulate=None, **fit_options):
+    """Coverage of the intrinsics' intervals over simulated replications.
+
+    Parameters
+    ----------
+    n_rep : int
+        Replications (each a fresh set of views).
+    level : float
+        Central interval level (normal, from ``covariance()``).
+    rng : Generator, int or None
+    simulate : dict, optional
+        Options of :func:`~bayescal.simulate_views` (default: its measured structure).
+    **fit_options
+        Passed to :func:`~bayescal.calibrate_camera`.
+
+    Returns
+    -------
+    dict
+        ``hits`` (5,) intervals that held the truth, ``z`` (n_rep, 5) standardised errors.
+    """
+    from scipy.stats import norm
+
+    from .._validation import resolve_rng
+    from ..scene.boards import simulate_views
+
+    rng = resolve_rng(rng)
+    zq = norm.ppf(0.5 + level / 2)
+    zs = []
+    for _ in range(int(n_rep)):
+        views, truth = simulate_views(rng=rng, **(simulate or {}))
+        cam = calibrate_camera(views, **fit_options)
+        zs.append((cam.k - truth["intrinsics"]) / np.sqrt(np.diag(cam.covariance())))
+    z = np.array(zs)
+    return {"hits": np.sum(np.abs(z) <= zq, axis=0), "z": z}

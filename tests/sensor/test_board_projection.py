@@ -41,7 +41,7 @@ def test_project_board_jacobians_match_finite_differences(rng, numdiff):
         pose = _pose(rng)
         uv, valid, dk, dp = project_board(K, pose, p, jacobian=True)
         assert valid.all()
-        nk = numdiff(lambda x: project_board(x, pose, p)[0].reshape(-1), K,
+        nk = numdiff(lambda x, pose=pose: project_board(x, pose, p)[0].reshape(-1), K,
                      [1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
         npo = numdiff(lambda x: project_board(K, x, p)[0].reshape(-1), pose,
                       [1e-7] * 3 + [1e-4] * 3)

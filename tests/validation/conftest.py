@@ -5,7 +5,6 @@ folder or OpenCV is absent."""
 import os
 import pathlib
 
-import numpy as np
 import pytest
 
 import bayescal as bc
