@@ -66,7 +66,9 @@ ax.set_ylim(views[0].pixels[:, 1].max() + 60, views[0].pixels[:, 1].min() - 60)
 # %%
 # The calibration: every view is used; one pose per view is integrated out of the
 # intrinsics' covariance. The default noise model gives each view its own noise level and
-# a smooth per-view systematic field (what real corners show, see :doc:`../cli`).
+# a smooth per-view systematic field: what real corners show, and what makes the stated
+# covariance hold up under cross-validation on real views (:doc:`../camera`,
+# :doc:`../camera_images`).
 cam = bc.calibrate_camera(views)
 print(cam.summary())
 sd = cam.std()
