@@ -86,7 +86,7 @@ REAL_LIKE_POSES = np.array([
 
 
 def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAMERA, rng=0):
-    """Render one PNG per pose into ``folder``; returns the paths and the true views."""
+    """Render one PGM per pose into ``folder``; returns the paths and the true views."""
     import imageio.v3 as iio
 
     import bayescal as bc
@@ -94,7 +94,7 @@ def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAM
     paths, truths = [], []
     for k, pose in enumerate(poses):
         img, truth = bc.render_board(camera, pose, rng=np.random.default_rng([rng, k]))
-        path = folder / f"board_{k}.png"
+        path = folder / f"board_{k}.pgm"
         iio.imwrite(path, img)
         paths.append(path)
         truths.append(truth)

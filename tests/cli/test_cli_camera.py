@@ -37,7 +37,7 @@ def test_images_to_camera_json_and_report(boards, capsys):
     views = bc.load_views(out / "corners.csv")
     assert [v.name for v in views] == cam.view_names and views[0].image_size == (1280, 1024)
     report = (out / "camera_report.md").read_text()
-    assert "board_4.png" in report and "Cross-validation" not in report
+    assert "board_4.pgm" in report and "Cross-validation" not in report
     assert (out / "camera_report.html").stat().st_size > 1000
     for png in ("view_residuals.png", "image_residuals.png"):
         assert png in report and (out / png).stat().st_size > 5000
