@@ -118,3 +118,13 @@ def test_every_real_view_is_found():
         r = np.linalg.norm(g - CENTRE, axis=-1).mean(axis=1)
         assert r[0] > r[-1]
     assert len(set(signs)) == 1      # one handedness: no view is mirrored
+
+
+def test_another_image_size():
+    # the same poses through an 800 x 600 camera (gamma scaled by 0.6): squares of 8-20 px
+    cam = {**REAL_LIKE_CAMERA, "gamma_u": 190.7, "gamma_v": -190.8, "u0": 401.5, "v0": 298.2}
+    img, truth = bc.render_board(cam, REAL_LIKE_POSES[3], image_size=(800, 600), rng=7)
+    view = bc.find_chessboard(img)
+    assert view.image_size == (800, 600)
+    err = view.pixels - order_corners(truth.pixels, (8, 6), center=(399.5, 299.5))
+    assert np.abs(err).max() < MAX_ERR and np.sqrt(np.mean(err ** 2)) < RMS_ERR
