@@ -61,7 +61,7 @@ def test_corner_order_is_fixed_whatever_opencv_returns(rendered):
                                       order_corners(t, (8, 6), center=CENTRE))
 
 
-def test_pgm_file_and_colour_image(rendered, tmp_path):
+def test_pgm_16_bit_and_colour_images(rendered, tmp_path):
     import imageio.v3 as iio
 
     img, truth = rendered[0]
@@ -72,6 +72,9 @@ def test_pgm_file_and_colour_image(rendered, tmp_path):
     _check_corners(view, truth)
     colour = np.repeat(img[..., None], 3, axis=2)
     _check_corners(bc.find_chessboard(colour, name="c"), truth)
+    deep = tmp_path / "board16.png"                   # 16 bit, the full range used
+    iio.imwrite(deep, (img.astype(np.uint16) * 257))
+    _check_corners(bc.find_chessboard(deep), truth)
 
 
 @pytest.mark.slow
