@@ -3,14 +3,16 @@
 The detection is OpenCV's (``cv2.findChessboardCorners``, then ``cv2.cornerSubPix``), an
 optional dependency (``pip install bayescal[camera]``): a detector that decades of
 calibrations have exercised on blur, glare and distorted boards is worth more than a new one.
-``cv2.findChessboardCornersSB`` is available as ``method="sb"``; ``docs/camera_images.md``
-compares the two on rendered and real catadioptric views.
+When it finds no board, ``cv2.findChessboardCornersSB`` (which copes with more blur) finds
+it and ``cornerSubPix`` refines its corners the same way. The sector-based detector's own
+sub-pixel corners are available as ``method="sb"``; ``docs/camera_images.md`` compares the
+two on rendered and real catadioptric views.
 
-A chessboard with an odd number of squares each way (an even number of inner corners, such
-as 8 x 6) looks the same turned by 180 degrees, and OpenCV lists its corners in either
-direction. :func:`find_chessboard` fixes the order: the first row of corners is the one
-farther from the image centre (in a catadioptric image, radially outwards is upwards in the
-room, so a board held upright has its first row at the top in every view).
+The grid of inner corners looks the same turned by 180 degrees (with an even number of
+corners each way, such as 8 x 6, so does the printed board), and OpenCV lists the corners
+in either direction. :func:`find_chessboard` fixes the order: the first row of corners is
+the one farther from the image centre (in a catadioptric image, radially outwards is
+upwards in the room, so a board held upright has its first row at the top in every view).
 """
 
 from __future__ import annotations
@@ -104,20 +106,26 @@ def _window(corners, nx, ny):
     return int(np.clip(np.percentile(gaps, 10) // 2, 2, 5))
 
 
+def _sector_based(cv2, img8, nx, ny):
+    flags = cv2.CALIB_CB_EXHAUSTIVE + cv2.CALIB_CB_ACCURACY
+    found, corners = cv2.findChessboardCornersSB(img8, (nx, ny), flags=flags)
+    return corners.reshape(-1, 2).astype(float) if found else None
+
+
 def _detect(cv2, img8, gray, nx, ny, method, window):
+    """Corners (M, 2) px or None: SB's own, or found (classic, else SB) and refined."""
     if method == "sb":
-        flags = cv2.CALIB_CB_EXHAUSTIVE + cv2.CALIB_CB_ACCURACY
-        found, corners = cv2.findChessboardCornersSB(img8, (nx, ny), flags=flags)
-        return corners.reshape(-1, 2).astype(float) if found else None
+        return _sector_based(cv2, img8, nx, ny)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE
     found, corners = cv2.findChessboardCorners(img8, (nx, ny), flags=flags)
-    if not found:
+    corners = corners.reshape(-1, 2) if found else _sector_based(cv2, img8, nx, ny)
+    if corners is None:
         return None
-    corners = corners.reshape(-1, 2)
     w = _window(corners, nx, ny) if window is None else int(window)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-    refined = cv2.cornerSubPix(gray.astype(np.float32), corners.reshape(-1, 1, 2).copy(),
-                               (w, w), (-1, -1), crit)
+    refined = cv2.cornerSubPix(gray.astype(np.float32),
+                               corners.reshape(-1, 1, 2).astype(np.float32), (w, w), (-1, -1),
+                               crit)
     return refined.reshape(-1, 2).astype(float)
 
 
@@ -135,11 +143,13 @@ def find_chessboard(image, board=(8, 6), square=42.0, *, method="classic", windo
     square : float, optional
         Side of one square, mm.
     method : {"classic", "sb"}, optional
-        ``"classic"``: ``cv2.findChessboardCorners`` then ``cv2.cornerSubPix``;
-        ``"sb"``: ``cv2.findChessboardCornersSB`` with its accuracy flag (slower).
+        ``"classic"``: ``cv2.findChessboardCorners`` (or, when it finds no board,
+        ``cv2.findChessboardCornersSB``, which copes with more blur), then
+        ``cv2.cornerSubPix``; ``"sb"``: ``cv2.findChessboardCornersSB``'s own sub-pixel
+        corners (accuracy flag; slower, and more biased on catadioptric boards).
     window : int, optional
-        Half-size of ``cornerSubPix``'s window, px (classic only). Default: from the
-        smallest corner spacing, ``spacing // 2.5``, between 2 and 5.
+        Half-size of ``cornerSubPix``'s window, px (classic only). Default: half the short
+        corner spacing (10th percentile of the neighbour distances), between 2 and 5.
     center : array_like, shape (2,), optional
         Point the corner order is fixed against (see :func:`order_corners`), px.
         Default: the image centre ``((W - 1) / 2, (H - 1) / 2)``.

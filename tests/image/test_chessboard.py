@@ -131,3 +131,20 @@ def test_another_image_size():
     assert view.image_size == (800, 600)
     err = view.pixels - order_corners(truth.pixels, (8, 6), center=(399.5, 299.5))
     assert np.abs(err).max() < MAX_ERR and np.sqrt(np.mean(err ** 2)) < RMS_ERR
+
+
+@pytest.mark.slow
+def test_a_blurred_board_is_found_by_the_fallback():
+    import cv2
+
+    from bayescal.image.chessboard import _to_uint8
+
+    # 2 px of lens blur on the thinnest board: findChessboardCorners gives up, the
+    # sector-based detector finds it and cornerSubPix refines it. Blur this strong costs
+    # accuracy (0.2 px rms measured); the bound checks the correspondence: a corner matched
+    # to the wrong one would be off by the corner spacing, 8.5 px or more here.
+    img, truth = bc.render_board(REAL_LIKE_CAMERA, REAL_LIKE_POSES[1], psf_px=2.0, rng=1)
+    assert not cv2.findChessboardCorners(_to_uint8(img.astype(float)), (8, 6), flags=3)[0]
+    view = bc.find_chessboard(img)
+    err = view.pixels - order_corners(truth.pixels, (8, 6), center=CENTRE)
+    assert np.abs(err).max() < 2.0
