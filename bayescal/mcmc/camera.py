@@ -14,6 +14,13 @@ differential evolution of :mod:`bayescal.mcmc.steps`, the stopping rule its
 ``tau_factor`` x tau and ESS rule.
 
 Priors: flat in the intrinsics (``xi > 0``), flat in ``log sigma_k``, flat in ``tau >= 0``.
+
+With the default least squares (views weighted by their own noise, the covariance under
+the full noise model: a sandwich), the chain samples the model the fit weighted by
+(``noise="per-view"``) and its draws of the intrinsics are then moved about their mean so
+that their covariance is the least-squares one (the "open-faced sandwich" adjustment of
+a posterior from a working likelihood): the posterior keeps the fit's centre and the
+noise model's spread, and ``tau`` is the least-squares (REML) value, not sampled.
 """
 
 from __future__ import annotations
@@ -91,27 +98,47 @@ class CameraTarget:
         return np.where(np.isfinite(lp), lp, -np.inf)
 
 
+def _adjusted(cam):
+    """Whether the least squares was the weighted fit with a sandwich covariance."""
+    return cam.info.get("estimator", "").startswith("per-view weighted")
+
+
 def _start(views, noise, lsq, fit_options):
-    """The least-squares fit (same noise model), the target and the proposal's start."""
+    """The least-squares fit, the target (the model the fit weighted by) and the proposal."""
     cam = lsq if lsq is not None else calibrate_camera(views, noise=noise, **fit_options)
     lik = BoardLikelihood(views, degree=cam.info.get("degree", 2))
-    per_view, systematic = NOISE_MODELS[cam.noise]
-    sig = cam.sigma if per_view else cam.sigma[:1]
+    model = "per-view" if _adjusted(cam) else cam.noise
+    per_view, systematic = NOISE_MODELS[model]
+    wsig = np.asarray(cam.info.get("weight_sigma", cam.sigma), float)
+    sig = wsig if per_view else wsig[:1]
     eta = np.log(np.concatenate([sig, [max(cam.tau, 1e-3)] if systematic else []]))
-    s2, t2 = _noise_values(eta, lik.K, cam.noise)
+    s2, t2 = _noise_values(eta, lik.K, model)
     P = camera_normal_equations(lik, cam.k, cam.poses, s2, t2)
-    _, _, Cinv, B, _ = _schur(P)
+    S, _, Cinv, B, _ = _schur(P)
     response = -np.einsum("kij,klj->kil", Cinv, B)
-    target = CameraTarget(lik, cam.k, cam.poses, response, cam.noise)
+    target = CameraTarget(lik, cam.k, cam.poses, response, model)
     n = len(eta)
     cov = np.zeros((5 + n, 5 + n))
-    cov[:5, :5] = cam.cov
-    ncov = cam.noise_cov if cam.noise_cov is not None else np.full((n, n), np.nan)
+    cov[:5, :5] = np.linalg.inv(S)
+    ncov = cam.noise_cov if model == cam.noise and cam.noise_cov is not None else None
     x = np.exp(eta)
-    logcov = ncov / np.outer(x, x)
-    ok = np.all(np.isfinite(logcov)) and np.all(np.linalg.eigvalsh(logcov) > 0)
-    cov[5:, 5:] = logcov if ok else np.diag(np.full(n, 0.05))
+    logcov = None if ncov is None else ncov / np.outer(x, x)
+    if logcov is None or not (np.all(np.isfinite(logcov))
+                              and np.all(np.linalg.eigvalsh(logcov) > 0)):
+        # var(log sigma) ~ 1 / (2 dof) for a view of 2M - 6 degrees of freedom
+        logcov = np.diag(1.0 / (2.0 * np.maximum(lik.n_obs[:n] - 6, 1)))
+    cov[5:, 5:] = logcov
     return cam, target, np.concatenate([cam.k, eta]), spd_covariance(cov)
+
+
+def _adjust(flat, cam):
+    """Draws of the intrinsics moved about their mean so that their covariance is the
+    least-squares (sandwich) one: ``k* = mean + A (k - mean)``, ``A = L_lsq L_post^-1``."""
+    k = flat[:, :5]
+    mean = k.mean(axis=0)
+    L_post = np.linalg.cholesky(np.cov(k, rowvar=False))
+    A = np.linalg.cholesky(cam.cov) @ np.linalg.inv(L_post)
+    return mean + (k - mean) @ A.T
 
 
 def sample_camera_posterior(views, rng=None, *, noise="view-systematic", lsq=None,
@@ -165,24 +192,34 @@ def sample_camera_posterior(views, rng=None, *, noise="view-systematic", lsq=Non
     info = run_until_converged(sampler, tuned["state"], min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=max_steps, chunk=max(200, 4 * int(n_tune)),
                                progress=progress, coords=_Identity())
-    chain = sampler.get_chain()
-    flat = chain[info["burn"]:].reshape(-1, ndim)
+    flat = sampler.get_chain()[info["burn"]:].reshape(-1, ndim).copy()
+    adjusted = _adjusted(cam)
+    if adjusted:
+        flat[:, :5] = _adjust(flat, cam)
+    K = len(cam.view_names)
+    per_view = NOISE_MODELS[target.model][0]
+    sig_draws = np.exp(flat[:, 5:5 + (K if per_view else 1)])
+    values = [flat[:, :5], sig_draws]
+    if NOISE_MODELS[cam.noise][1]:
+        tau = np.exp(flat[:, -1]) if NOISE_MODELS[target.model][1] else np.full(len(flat),
+                                                                                cam.tau)
+        values.append(tau[:, None])
+    values = np.concatenate(values, axis=1)
     idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
-    draws = flat[idx].copy()
-    draws[:, 5:] = np.exp(draws[:, 5:])
     names = list(CAMERA_NAMES) + cam.noise_names
-    diag = ChainDiagnostics(names, info["tau"], info["ess"], info["n_steps"], info["burn"], nw,
-                            float(np.mean(sampler.acceptance_fraction)), info["converged"],
-                            tau_factor, min_ess, moves="independence t + DEMove",
-                            extra={"tune_acceptance": tuned["acceptance"]})
-    mean = flat.mean(axis=0)
-    sig = np.exp(mean[5:5 + (len(cam.sigma) if NOISE_MODELS[cam.noise][0] else 1)])
-    post = CameraResult(flat[:, :5].mean(axis=0), np.cov(flat[:, :5], rowvar=False), cam.poses,
+    diag = ChainDiagnostics(names[:ndim], info["tau"], info["ess"], info["n_steps"],
+                            info["burn"], nw, float(np.mean(sampler.acceptance_fraction)),
+                            info["converged"], tau_factor, min_ess,
+                            moves="independence t + DEMove",
+                            extra={"tune_acceptance": tuned["acceptance"],
+                                   "adjusted_to_least_squares": adjusted})
+    mean = values.mean(axis=0)
+    post = CameraResult(mean[:5], np.cov(values[:, :5], rowvar=False), cam.poses,
                         cam.residuals, cam.view_names, noise=cam.noise,
-                        sigma=np.broadcast_to(sig, (len(cam.view_names),)),
-                        tau=float(np.exp(mean[-1])) if NOISE_MODELS[cam.noise][1] else 0.0,
+                        sigma=np.broadcast_to(mean[5:5 + sig_draws.shape[1]], (K,)),
+                        tau=float(mean[-1]) if NOISE_MODELS[cam.noise][1] else 0.0,
                         image_size=cam.image_size, method="posterior", pose_cov=cam.pose_cov,
-                        samples=draws, diagnostics=diag, info=dict(cam.info))
+                        samples=values[idx], diagnostics=diag, info=dict(cam.info))
     report_unconverged(diag, post, what="the camera chain", max_steps=max_steps,
                        on_unconverged=on_unconverged, stacklevel=2)
     return post

@@ -82,3 +82,26 @@ def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="init"):
         bc.calibrate_camera(views, init=[1.0, 2.0])
     assert DegenerateInputError  # raised by the start when no pose fits (named views)
+
+
+def test_sandwich_covariance_matches_dense_algebra(rng):
+    """The per-view Schur form of the sandwich equals (H^-1 M H^-1)[:5, :5] built densely."""
+    from bayescal.fit.camera import sandwich_covariance
+    from bayescal.likelihood.boards import BoardLikelihood
+
+    views, truth = bc.simulate_views(n_views=3, rng=rng)
+    lik = BoardLikelihood(views)
+    k, poses = truth["intrinsics"], truth["poses"]
+    s2w, s2, t2 = np.array([0.05, 0.08, 0.03]), np.array([0.04, 0.06, 0.02]), 0.03
+    _, Jk, Jp = lik.residuals(k, poses, jacobian=True)
+    n = 5 + 6 * 3
+    H, M = np.zeros((n, n)), np.zeros((n, n))
+    for j in range(3):
+        G = np.zeros((lik.n_obs[j], n))
+        G[:, :5], G[:, 5 + 6 * j:11 + 6 * j] = Jk[j], Jp[j]
+        S = s2[j] * np.eye(lik.n_obs[j]) + t2 * lik.B[j] @ lik.B[j].T
+        H += G.T @ G / s2w[j]
+        M += G.T @ S @ G / s2w[j] ** 2
+    Hi = np.linalg.inv(H)
+    np.testing.assert_allclose(sandwich_covariance(lik, k, poses, s2w, s2, t2),
+                               (Hi @ M @ Hi)[:5, :5], rtol=1e-8)
