@@ -15,9 +15,11 @@ from .errors import DegenerateInputError
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
+from .image.chessboard import find_chessboard
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
 from .image.views import BoardView, board_points
+from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
 from .mcmc.camera import sample_camera_posterior
 from .mcmc.sampling import NotConvergedError, NotConvergedWarning, sample_posterior
@@ -37,6 +39,7 @@ from .results.reconstruction import (
     Reconstructor,
     reconstruct_frames,
 )
+from .scene.board_render import render_board
 from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
@@ -104,4 +107,8 @@ __all__ = [
     "LaserPixels",
     "BoardView",
     "board_points",
+    "find_chessboard",
+    "render_board",
+    "load_views",
+    "write_views",
 ]

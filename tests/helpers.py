@@ -70,3 +70,32 @@ def check_plan_residual_jacobians(lik, g, walls, t, sigma, numdiff, *, rows, dt_
     np.testing.assert_allclose(np.stack([u[0], v[0]], -1), R * sigma + lik.pixels, rtol=1e-12)
     np.testing.assert_allclose(np.stack([du[0], dv[0]], -1), Jt * sigma, **dt_tol)
     return Jg
+
+
+# A camera and board poses like the shared real views (1280x1024, 8 x 6 corners of 42 mm,
+# boards 330-420 mm away, 14-42 deg below the horizon), in the package's sign convention
+# (gamma_v < 0): rotation vector (rad) and translation (mm), board frame -> frame C.
+REAL_LIKE_CAMERA = {"xi": 1.134, "gamma_u": 317.8, "gamma_v": -318.0, "u0": 642.5, "v0": 522.9}
+REAL_LIKE_POSES = np.array([
+    [-2.0522, 1.1369, -0.44281, 208.0, 336.0, -119.0],
+    [2.7646, -1.3874, -0.029836, 219.0, 391.0, -286.0],
+    [2.9563, 1.0625, -0.030796, 10.0, -269.0, -247.0],
+    [1.6959, 0.47, 0.27156, 35.0, -312.0, -172.0],
+    [1.2206, 0.59749, 0.027576, 11.0, -425.0, -195.0],
+])
+
+
+def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAMERA, rng=0):
+    """Render one PGM per pose into ``folder``; returns the paths and the true views."""
+    import imageio.v3 as iio
+
+    import bayescal as bc
+
+    paths, truths = [], []
+    for k, pose in enumerate(poses):
+        img, truth = bc.render_board(camera, pose, rng=np.random.default_rng([rng, k]))
+        path = folder / f"board_{k}.pgm"
+        iio.imwrite(path, img)
+        paths.append(path)
+        truths.append(truth)
+    return paths, truths

@@ -250,3 +250,23 @@ def test_misalignment_smoke(tmp_path):
     assert s["tilt 1 deg"]["prefers_misaligned"] == 1 and s["aligned"]["prefers_misaligned"] == 0
     assert (tmp_path / "misalignment.png").stat().st_size > 10_000
     assert "| tilt 1 deg | misaligned |" in (tmp_path / "misalignment.md").read_text()
+
+
+@pytest.mark.slow
+def test_realcam_on_the_shared_views(tmp_path):
+    import os
+
+    data = pathlib.Path(os.environ.get("BAYESCAL_PARA_DIR")
+                        or STUDIES.parents[1] / "shared" / "data" / "para")
+    if not data.is_dir():
+        pytest.skip(f"real views not found at {data}")
+    pytest.importorskip("cv2")
+    res = _run("realcam", tmp_path, "--data", str(data))
+    assert res["missed"] == [] and res["corners"] == [48] * len(res["views"])
+    plain = res["models"][0]
+    assert plain["noise"] == "plain" and 0.2 < plain["rms"] < 0.4
+    # OpenCV's own fit on the views it keeps agrees with bayescal's on the same views
+    o = res["opencv"]
+    for name in ("xi", "gamma_u", "u0", "v0"):
+        assert abs(o[name] - o["bayescal_same_views"][name]) < 1e-3 * abs(o[name])
+    assert "| OpenCV omnidir.calibrate |" in (tmp_path / "realcam.md").read_text()

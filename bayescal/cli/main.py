@@ -111,6 +111,14 @@ _COMMANDS = {
     "report": (op.REPORT_OPTIONS, "rebuild the Markdown/HTML report of a calibration run",
                "Rebuild report.md and the self-contained report.html of a 'bayescal "
                "calibrate' output folder into --out."),
+    "calibrate-camera": (op.CALIBRATE_CAMERA_OPTIONS, "calibrate the camera alone from "
+                         "chessboard images or corners",
+                         "Calibrate the catadioptric camera's intrinsics (xi, gamma_u, "
+                         "gamma_v, u0, v0) from views of a chessboard: images (OpenCV "
+                         "finds the corners; pip install bayescal[camera]) or a corners "
+                         "file. Writes camera.json (the result, for calibrate --camera), "
+                         "corners.csv, camera_report.md, camera_report.html and figures "
+                         "into --out."),
     "study": (op.STUDY_OPTIONS, "run an uncertainty study from studies/NAME.py", None),
     "demo": (op.DEMO_OPTIONS, "the main job: simulate the paper's large room, calibrate it "
              "three ways, write reports into --out",
@@ -122,7 +130,7 @@ _COMMANDS = {
 
 
 def build_parser():
-    """The argument parser with its seven subcommands (options from :mod:`bayescal.cli.options`)."""
+    """The argument parser with its subcommands (options from :mod:`bayescal.cli.options`)."""
     parser = _Parser(prog="bayescal", description=_DESCRIPTION,
                      epilog=_EPILOG, formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=_version())
@@ -142,17 +150,19 @@ def _run(args, folders):
     that :func:`main` can tell an interrupt after the commit from one before.
     """
     from ..io.outputs import OutputFolder
-    from . import demo, jobs, runs
+    from . import camera, demo, jobs, runs
 
     o = {k: v for k, v in vars(args).items() if k != "command"}
     build = {"simulate": jobs.SimulateJob, "extract": jobs.ExtractJob,
              "calibrate": jobs.CalibrateJob,
              "reconstruct": jobs.ReconstructJob, "report": jobs.ReportJob,
-             "study": jobs.StudyJob, "demo": jobs.DemoJob}[args.command].build
+             "study": jobs.StudyJob, "demo": jobs.DemoJob,
+             "calibrate-camera": camera.CameraJob}[args.command].build
     run = {"simulate": runs.run_simulate, "extract": runs.run_extract,
            "calibrate": runs.run_calibrate,
            "reconstruct": runs.run_reconstruct, "report": runs.run_report,
-           "study": demo.run_study, "demo": demo.run_demo}[args.command]
+           "study": demo.run_study, "demo": demo.run_demo,
+           "calibrate-camera": camera.run_calibrate_camera}[args.command]
     job = build(**o)
     folders.append(OutputFolder(job.out))
     with folders[-1] as folder:

@@ -24,7 +24,7 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
            "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS", "LASER_MODELS",
-           "finite_float"]
+           "finite_float", "board_size", "CALIBRATE_CAMERA_OPTIONS", "CAMERA_NOISE"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
 #: ``--model``: the paper's coaxial cone, a tilted and offset one, or the better of both
@@ -397,4 +397,46 @@ STUDY_OPTIONS = (
     Opt(("--scheduler",), {"metavar": "ADDRESS", "help": "address of a Dask distributed "
                            "scheduler to run the trials on, e.g. tcp://127.0.0.1:8786"}),
     *_out(None), _SEED,
+)
+
+
+# -- calibrate-camera (the camera alone, from chessboard views) -------------------
+
+def board_size(text):
+    """``COLUMNSxROWS`` inner corners of a chessboard, both integers >= 2, as a tuple."""
+    try:
+        nx, ny = (int(s) for s in str(text).lower().split("x"))
+    except ValueError:
+        raise _BAD(f"{text!r}: expected COLUMNSxROWS of inner corners, like 8x6") from None
+    if nx < 2 or ny < 2:
+        raise _BAD(f"{text!r}: expected at least 2x2 inner corners, like 8x6")
+    return nx, ny
+
+
+#: noise models of calibrate-camera (bayescal.calibrate_camera's ``noise``)
+CAMERA_NOISE = ("view-systematic", "per-view", "plain")
+
+CALIBRATE_CAMERA_OPTIONS = (
+    Opt(("images",), {"type": input_file, "nargs": "*", "metavar": "IMAGE",
+                      "help": "chessboard images (PGM, PNG, TIFF, JPEG; 8 or 16 bit; any "
+                      "size, all the same), one view each; every one must show the whole "
+                      "board"}),
+    Opt(("--corners",), {"type": input_file, "metavar": "FILE", "help": "instead of images: "
+                         "a CSV or NPZ of corners (view, u, v, x, y, z [, cov_uu, cov_uv, "
+                         "cov_vv]; docs/cli.md)"}),
+    Opt(("--board",), {"type": board_size, "default": (8, 6), "metavar": "CxR",
+                       "help": "inner corners of the board, columns x rows"}),
+    Opt(("--square",), {"type": positive_float, "default": 42.0, "metavar": "MM",
+                        "help": "side of a square, mm"}),
+    Opt(("--detector",), {"choices": ("classic", "sb"), "default": "classic",
+                          "help": "OpenCV's findChessboardCorners + cornerSubPix (classic) "
+                          "or findChessboardCornersSB (sb)"}),
+    Opt(("--noise",), {"choices": CAMERA_NOISE, "default": CAMERA_NOISE[0],
+                       "help": "noise model of the corners: per-view noise and a per-view "
+                       "systematic field (view-systematic), per-view noise only, or one "
+                       "noise level (plain least squares)"}),
+    Opt(("--no-cross-validation",), {"action": "store_true", "help": "skip the "
+                                     "cross-validation between halves of the views (it "
+                                     "calibrates twice per split, at most 10 splits)"}),
+    *_out("camera"),
 )
