@@ -28,11 +28,10 @@ from ..errors import DegenerateInputError, Failure, InputError, UsageError
 from ..io.outputs import check_out
 from . import options as op
 from .jobs import _opts
+from .lasermodel import CAMERA_FILE
 
 __all__ = ["CameraJob", "run_calibrate_camera", "CAMERA_FILE", "CORNERS_FILE"]
 
-#: the result file in a calibrate-camera folder
-CAMERA_FILE = "camera.json"
 #: the corners used, in the format of bayescal.load_views
 CORNERS_FILE = "corners.csv"
 #: most splits of the views in the cross-validation (each calibrates twice)
