@@ -197,7 +197,7 @@ class CalibrateJob:
     def build(cls, *, title=None, **options):
         """Validated job from option values (:data:`~bayescal.cli.options.CALIBRATE_OPTIONS`)."""
         o = _opts(op.CALIBRATE_OPTIONS, options)
-        method = o["method"]
+        method = o["method"] = op.method_option(o["method"])
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
         nominal, prior = nominal_and_prior(o["nominal"], o["prior"])
@@ -378,18 +378,21 @@ class ReportJob:
         run = pathlib.Path(o["run"])
         result, info = _load_run(run)
         ins = info.get("inputs", {})
-        if not ins.get("data"):
+        sequential = info.get("method") == "sequential"
+        if not ins.get("data") and not sequential:
             raise UsageError(f"{run}: the run names no laser data file; nothing to report on")
         try:
             plan = plan_from_record(info.get("plan"))
         except ValueError as exc:
             raise UsageError(f"{run}: {exc}") from None
-        data = load_laser_data(ins["data"], ins.get("points"),
-                               need_points=info.get("method") != "sequential" and plan is None)
+        data = None
+        if ins.get("data"):       # a sequential run may have none: its report has no points
+            data = load_laser_data(ins["data"], ins.get("points"),
+                                   need_points=not sequential and plan is None)
         if plan is not None:
             data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
-        truth = load_truth(o["truth"] or ins.get("truth"), data.n_points)
-        check_out(o["out"], force=o["force"], inputs=[run] + data.paths)
+        truth = load_truth(o["truth"] or ins.get("truth"), None if data is None else data.n_points)
+        check_out(o["out"], force=o["force"], inputs=[run] + ([] if data is None else data.paths))
         return cls(run=run, result=result, run_info=info, data=data, truth=truth,
                    out=pathlib.Path(o["out"]), force=o["force"], plan=plan)
 

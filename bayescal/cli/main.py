@@ -186,17 +186,18 @@ def main(argv=None):
 
     matplotlib.use("agg")              # files only, never a window
     stdout, stderr, show = sys.stdout, sys.stderr, warnings.showwarning
-    warnings.showwarning = lambda msg, *a, **k: print(f"bayescal: warning: {msg}", file=stderr)
+    warnings.showwarning = lambda msg, *a, **k: print(f"bayescal: warning: {op.cli_words(msg)}",
+                                                      file=stderr)
     old, folders = None, []
     if threading.current_thread() is threading.main_thread():
         old = signal.signal(signal.SIGINT, _on_sigint)
     try:
         return _run(args, folders)
     except (UsageError, InputError) as exc:
-        print(f"bayescal: error: {exc}", file=stderr)
+        print(f"bayescal: error: {op.cli_words(exc)}", file=stderr)
         return EXIT_USAGE
     except Failure as exc:
-        print(f"bayescal: failed: {exc}", file=stderr)
+        print(f"bayescal: failed: {op.cli_words(exc)}", file=stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:
         sys.stdout.flush()

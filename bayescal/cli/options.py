@@ -24,12 +24,43 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
            "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS", "LASER_MODELS",
-           "finite_float"]
+           "finite_float", "cli_words", "method_option"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
+#: other names ``--method`` takes: the simultaneous method is a least-squares fit
+_METHOD_ALIASES = {"lsq": "simultaneous", "least-squares": "simultaneous",
+                   "least_squares": "simultaneous", "ls": "simultaneous"}
 #: ``--model``: the paper's coaxial cone, a tilted and offset one, or the better of both
 LASER_MODELS = ("aligned", "misaligned", "auto")
 _BAD = argparse.ArgumentTypeError
+
+
+# -- the library's advice in the command line's words --------------------------------
+
+#: library advice that names Python arguments, and what the command line calls them
+_CLI_WORDS = ((re.compile(r"\boutliers=False\b"), "--no-outliers"),
+              (re.compile(r"\bgive (sigma_px|sigma_scene|kappa) explicitly"),
+               lambda m: "give --sigma-px" if m.group(1) == "sigma_px" else
+               "give --sigma-scene"),
+              (re.compile(r"\bmax_steps=(\d+)"), r"--max-steps \1"),
+              (re.compile(r"\bextract_laser\(along_sd=([\d.]+)\)"),
+               r"bayescal extract --along-sd \1"))
+
+
+def cli_words(text):
+    """``text`` (a library message) with its Python arguments named as the command line's
+    options, e.g. ``outliers=False`` -> ``--no-outliers``."""
+    text = str(text)
+    for pattern, repl in _CLI_WORDS:
+        text = pattern.sub(repl, text)
+    return text
+
+
+def method_option(text):
+    """``--method``: a name of :data:`METHODS`, or ``lsq`` / ``least-squares`` for the
+    simultaneous least squares."""
+    t = str(text).strip().lower()
+    return _METHOD_ALIASES.get(t, t)
 
 
 # -- validators -------------------------------------------------------------------
@@ -296,8 +327,8 @@ CALIBRATE_OPTIONS = (
     Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
                              "point is an inlier (default: each point may be an outlier, "
                              "see outlier_prob in points.csv)"}),
-    Opt(("--method",), {"choices": METHODS, "default": "simultaneous",
-                        "help": "calibration method"}),
+    Opt(("--method",), {"type": method_option, "choices": METHODS, "default": "simultaneous",
+                        "help": "calibration method (lsq: the simultaneous least squares)"}),
     Opt(("--model",), {"choices": LASER_MODELS, "default": "aligned",
                        "help": "laser model: aligned (the paper's cone, coaxial with the "
                        "camera), misaligned (its tilt and offset fitted too: four more "

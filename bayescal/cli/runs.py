@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..sensor.pose import POSE_NAMES
+from .options import cli_words
 from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
@@ -143,7 +144,7 @@ def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note=""):
     px, cov = lp.pixels[k], lp.covariance[k]
     _write_csv(path, {
         "u": px[:, 0], "v": px[:, 1], "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1],
-        "cov_vv": cov[:, 1, 1], "snr": lp.snr[k], "flagged": lp.flagged[k].astype(float)},
+        "cov_vv": cov[:, 1, 1], "snr": lp.snr[k], "flagged": lp.flagged[k].astype(int)},
         header_comment=note)
     return path
 
@@ -351,7 +352,7 @@ def run_calibrate(job, folder):
                               outlier_prob=getattr(result, "outlier_prob", None)))
     folder.add(_params_csv(out, job, result))
     acc, model = None, {"laser_model": choice.record()}
-    if job.data is not None and (recon is not None or result.points is not None):
+    if job.data is None or recon is not None or result.points is not None:
         info = run_record(job, **model)
         files, acc = write_report(out, result, info, data=job.data, recon=recon,
                                   truth=job.truth, prior=_prior_of(job), title=job.title,
@@ -360,7 +361,7 @@ def run_calibrate(job, folder):
     folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc, **model)))
     from ..checks.datafile import located_summary
 
-    print(located_summary(result, job.data))
+    print(cli_words(located_summary(result, job.data)))
     if choice.text():
         print(choice.text())
     if acc:
@@ -445,7 +446,7 @@ def run_report(job, folder):
     pts = job.run / "points.csv"
     if pts.is_file():
         c = read_table(pts, required=("x", "y", "z", "sd_x", "sd_y", "sd_z", "cov_xy", "cov_xz",
-                                      "cov_yz")).columns
+                                      "cov_yz"), optional=("outlier_prob",)).columns
         cov = np.empty((len(c["x"]), 3, 3))
         for i, a in enumerate("xyz"):
             cov[:, i, i] = c[f"sd_{a}"] ** 2

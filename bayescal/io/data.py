@@ -301,7 +301,12 @@ def check_projection_domain(points, table, params):
 
 
 def _column_text(a):
-    return ["inf" if np.isposinf(v) else repr(float(v)) for v in a]
+    """Cells of one column: integers (and booleans, as 0/1) as integers, floats with
+    ``repr`` (round-trip exact), ``inf`` as ``inf``."""
+    a = np.asarray(a)
+    if a.dtype.kind in "biu":
+        return [str(int(v)) for v in a]
+    return ["inf" if np.isposinf(v) else repr(float(v)) for v in a.astype(float)]
 
 
 def write_laser_csv(path, pixels, approx_points=None, *, sigma_scene=None, sigma_px=None,
@@ -345,7 +350,7 @@ def _write_csv(path, cols, header_comment=None):
                 f.write(f"# {line}\n")
         w = csv.writer(f, lineterminator="\n")
         w.writerow(cols)
-        texts = [_column_text(np.asarray(a, dtype=float)) for a in cols.values()]
+        texts = [_column_text(a) for a in cols.values()]
         w.writerows(zip(*texts, strict=True))
 
 
