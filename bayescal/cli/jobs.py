@@ -29,6 +29,7 @@ from ..checks.datafile import (
 from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
+from .design import image_size_setting, read_nominal
 from .lasermodel import model_setting, nominal_and_prior
 from .pixelcov import pixel_cov_setting
 
@@ -192,6 +193,8 @@ class CalibrateJob:
     figures: tuple = ()
     model: str = "aligned"
     model_note: str | None = None
+    image_size_how: str = "--image-size"
+    derived: dict = field(default_factory=dict)
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -200,8 +203,11 @@ class CalibrateJob:
         method = o["method"] = op.method_option(o["method"])
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
-        nominal, prior = nominal_and_prior(o["nominal"], o["prior"])
-        data, calib, plan = cls._read(o, nominal)
+        given = read_nominal(o["nominal"])
+        data, calib, plan, size = cls._read(o, given)
+        nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
+                                                    data=data, plan=plan)
+        _note_design(size, derived, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
@@ -218,17 +224,21 @@ class CalibrateJob:
         check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
         return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
                    truth=truth, sigma_px=spx, sigma_px_how=spx_how, sigma_scene=ssc,
-                   sigma_scene_how=ssc_how, image_size=tuple(o["image_size"]), seed=o["seed"],
+                   sigma_scene_how=ssc_how, image_size=size[0], seed=o["seed"],
                    max_steps=o["max_steps"], progress=not o["no_progress"],
                    allow_unconverged=o["allow_unconverged"], out=pathlib.Path(o["out"]),
                    force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
                    title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
                    plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups),
-                   model=model, model_note=note)
+                   model=model, model_note=note, image_size_how=size[1],
+                   derived=derived)
 
     @staticmethod
-    def _read(o, nominal):
-        """(LaserData or None, CalibrationData or None, FloorPlan or None), all checked."""
+    def _read(o, given):
+        """(LaserData or None, CalibrationData or None, FloorPlan or None, (image size,
+        where it came from)), all checked; ``given`` the design values of ``--nominal``."""
+        from ..sensor.parameters import SensorParams
+
         from ..io.data import (
             check_pixels_in_image,
             check_projection_domain,
@@ -250,13 +260,36 @@ class CalibrateJob:
         if o["data"] is not None:
             data = load_laser_data(o["data"], o["points"],
                                    need_points=method != "sequential" and plan is None)
-            check_pixels_in_image(data.pixels, data.pixel_table, image_size=o["image_size"],
+            _note_flagged(data.pixel_table, data.n_points, "calibration")
+        size = image_size_setting(o["image_size"], data)
+        if data is not None:
+            check_pixels_in_image(data.pixels, data.pixel_table, image_size=size[0],
                                   margin=o["image_margin"])
             if plan is not None:       # the plan is the scene: x, y, z columns are not used
                 data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
-            if data.approx_points is not None:
-                check_projection_domain(data.approx_points, data.point_table, nominal)
-        return data, calib, plan
+            if data.approx_points is not None:        # xi alone decides the domain
+                check_projection_domain(data.approx_points, data.point_table,
+                                        SensorParams(**{**SensorParams.paper().as_dict(),
+                                                        **given}))
+        return data, calib, plan, size
+
+
+def _note_flagged(table, n_kept, what):
+    """Say which rows ``bayescal extract`` flagged and the job leaves out."""
+    lines = table.dropped
+    if lines:
+        unit = "lines" if table.kind == "csv" else "rows"
+        shown = ", ".join(map(str, lines[:20])) + (" ..." if len(lines) > 20 else "")
+        print(f"{table.path}: {len(lines)} of {len(lines) + n_kept} points flagged by "
+              f"extract (flagged = 1) left out of the {what}: {unit} {shown}")
+
+
+def _note_design(size, derived, nominal):
+    """Say which design values came from the image size or the data, not ``--nominal``."""
+    if derived:
+        vals = ", ".join(f"{n} = {getattr(nominal, n):.6g} ({how})" for n, how in derived.items())
+        print(f"image {size[0][0]}x{size[0][1]} ({size[1]}): design values {vals}; give "
+              "--nominal to set them")
 
 
 def _read_plan(o):
@@ -333,7 +366,7 @@ class ReconstructJob:
 
         o = _opts(op.RECONSTRUCT_OPTIONS, options)
         run = pathlib.Path(o["run"])
-        result, _ = _load_run(run)
+        result, info = _load_run(run)
         paths = o["pixels"] if isinstance(o["pixels"], (list, tuple)) else [o["pixels"]]
         stems = [pathlib.Path(p).stem for p in paths]
         if len(set(stems)) < len(stems):
@@ -347,8 +380,11 @@ class ReconstructJob:
                                           center=(result.params.u0, result.params.v0)))
                 continue
             pixels, table = load_pixels(path)
-            check_pixels_in_image(pixels, table, image_size=o["image_size"],
-                                  margin=o["image_margin"])
+            _note_flagged(table, len(pixels), "reconstruction")
+            size = (o["image_size"] or table.meta.get("image_size")
+                    or tuple(info.get("image_size") or ()) or None)
+            size, _ = image_size_setting(size, None)
+            check_pixels_in_image(pixels, table, image_size=size, margin=o["image_margin"])
             frames.append((pathlib.Path(path), pixels, pixel_covariance(table)))
         check_out(o["out"], force=o["force"], inputs=[*paths, run])
         return cls(frames=tuple(frames), result=result, sigma_px=o["sigma_px"],

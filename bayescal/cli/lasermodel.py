@@ -28,41 +28,48 @@ __all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS"]
 FITTED_MODELS = ("aligned", "misaligned")
 
 
-def nominal_and_prior(nominal_path, prior_specs):
-    """The nominal sensor (``--nominal``) and the priors (``--prior``), checked.
+def nominal_and_prior(given, prior_specs, *, image_size, data=None, plan=None):
+    """The nominal sensor (``--nominal``, in part or whole, the rest derived) and the
+    priors (``--prior``), checked.
+
+    Parameters
+    ----------
+    given : dict
+        ``{name: value}`` of ``--nominal`` (:func:`bayescal.cli.design.read_nominal`).
+    prior_specs : list of (str, distribution) or None
+        ``--prior`` values.
+    image_size : (int, int)
+        px; another than the paper's 800x600 derives the design values not given
+        (:func:`bayescal.cli.design.design_values`).
+    data, plan : LaserData, FloorPlan, optional
+        What the focal scale is derived from.
 
     Returns
     -------
     nominal : SensorParams
     prior : dict or None
-        ``{name: frozen distribution}``: the defaults centred on ``nominal`` with the
-        overrides (pose names included); None when neither option was given.
+        ``{name: frozen distribution}``: the defaults centred on ``nominal`` (a principal
+        point at the image centre gets the sd of :func:`~bayescal.cli.design.centre_sd`)
+        with the overrides (pose names included); None when the nominal is the paper's
+        sensor and no ``--prior`` was given.
+    derived : dict
+        ``{name: how}`` of the design values derived, not given.
     """
-    from ..io.data import read_json
-    from ..likelihood.priors import default_prior
-    from ..sensor.parameters import PARAM_NAMES, SensorParams
+    from scipy import stats
 
-    nominal = SensorParams.paper()
-    if nominal_path is not None:
-        raw = read_json(nominal_path)
-        raw = raw.get("params", raw) if isinstance(raw, dict) else raw
-        if not isinstance(raw, dict):
-            raise UsageError(f"--nominal {nominal_path}: expected a JSON object of the 8 "
-                             "parameters")
-        missing = [n for n in PARAM_NAMES if n not in raw]
-        if missing:
-            raise UsageError(f"--nominal {nominal_path}: missing parameter(s) "
-                             f"{', '.join(missing)}; expected all of {', '.join(PARAM_NAMES)}")
-        try:
-            nominal = SensorParams(**{n: raw[n] for n in PARAM_NAMES})
-        except (TypeError, ValueError) as exc:
-            raise UsageError(f"--nominal {nominal_path}: {exc}") from None
+    from ..likelihood.priors import default_prior
+    from .design import centre_sd, design_values
+
+    nominal, derived = design_values(given, image_size=image_size, data=data, plan=plan)
     overrides = dict(prior_specs or [])
-    if nominal_path is None and not overrides:
-        return nominal, None
+    if not given and not derived and not overrides:
+        return nominal, None, derived
     prior = default_prior(nominal)
+    for name in ("u0", "v0"):
+        if derived.get(name) == "image centre":
+            prior[name] = stats.norm(getattr(nominal, name), centre_sd(image_size))
     prior.update(overrides)
-    return nominal, prior
+    return nominal, prior, derived
 
 
 def model_setting(model, *, method, plan, prior_specs):

@@ -276,9 +276,13 @@ def _out(default):
 
 
 _SEED = Opt(("--seed",), {"type": seed, "default": 0, "help": "random seed, an integer >= 0"})
-_IMAGE = (Opt(("--image-size",), {"type": image_size, "default": (800, 600), "metavar": "WxH",
-                                  "help": "image width x height in px; pixels further than "
-                                  "--image-margin outside it are rejected as bad input"}),
+_IMAGE = (Opt(("--image-size",), {"type": image_size, "metavar": "WxH",
+                                  "help": "image width x height in px (default: the data "
+                                  "file's '# image_size: WxH' line, which extract writes, "
+                                  "else 800x600, the paper's sensor); pixels further than "
+                                  "--image-margin outside it are rejected as bad input; "
+                                  "another size centres the design values on it "
+                                  "(docs/cli.md)"}),
           Opt(("--image-margin",), {"type": nonneg_float, "default": 50.0, "metavar": "PX",
                                     "help": "tolerance around the image, px"}))
 
@@ -346,9 +350,11 @@ CALIBRATE_OPTIONS = (
                              "points: mm, 'sx,sy,sz' (inf allowed), a percentage of each "
                              "point's horizontal range like '5%%', or 'infer' (default: the "
                              "file's sigma columns, else infer)"}),
-    Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values of "
-                         "the 8 parameters (JSON object, or one with a 'params' object); "
-                         "centres the default priors (default: the paper's sensor)"}),
+    Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values "
+                         "(JSON object, or one with a 'params' object) of any of the 8 "
+                         "parameters, e.g. {\"u0\": 640, \"v0\": 512}; they centre the default "
+                         "priors. The rest: the paper's sensor for an 800x600 image, else "
+                         "derived from the image size and the data (docs/cli.md)"}),
     Opt(("--prior",), {"type": prior_option, "action": "append", "metavar": "NAME=DIST(ARGS)",
                        "help": "override one prior with a scipy.stats distribution, e.g. "
                        "'h=norm(200, 20)', or with --model misaligned/auto one of the laser "

@@ -124,7 +124,8 @@ def run_extract(job, folder):
     if len(lp) == 0 or np.all(lp.flagged):
         return f"no laser ring found in {job.image_path}"
     p = folder.path
-    write_laser_pixels(p / "laser.csv", lp, job.image_path.name)
+    write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
+                       image_size=job.image.shape[1::-1])
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
     print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
@@ -132,15 +133,19 @@ def run_extract(job, folder):
           f"{job.out / 'overlay.png'}")
 
 
-def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note=""):
+def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_size=None):
     """Write extracted laser pixels as ``bayescal extract``'s CSV (u, v, cov_uu, cov_uv,
-    cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset."""
+    cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset. ``image_size``
+    ``(width, height)`` px is written first as ``# image_size: WxH``, which ``calibrate``
+    and ``reconstruct`` read."""
     from ..io.data import _write_csv
 
     k = slice(None) if rows is None else rows
     note = (f"bayescal extract {image_name}: u, v laser centre line (px); cov_*: "
             "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
-            "noise sd; flagged: 1 = likely distractor" + extra_note)
+            "noise sd; flagged: 1 = likely distractor, left out by calibrate" + extra_note)
+    if image_size is not None:
+        note = f"image_size: {int(image_size[0])}x{int(image_size[1])}\n" + note
     px, cov = lp.pixels[k], lp.covariance[k]
     _write_csv(path, {
         "u": px[:, 0], "v": px[:, 1], "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1],
