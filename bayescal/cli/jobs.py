@@ -69,6 +69,7 @@ class SimulateJob:
     images: bool = False
     tilt: tuple = (0.0, 0.0)
     offset: tuple = (0.0, 0.0)
+    image_size: tuple = (800, 600)
 
     @classmethod
     def build(cls, **options):
@@ -76,14 +77,23 @@ class SimulateJob:
         o = _opts(op.SIMULATE_OPTIONS, options)
         check_out(o["out"], force=o["force"])
         o["out"] = pathlib.Path(o["out"])
+        o["image_size"] = tuple(int(v) for v in o["image_size"])
         return cls(**{k: o[k] for k in cls.__dataclass_fields__})
+
+    def sensor(self):
+        """The simulated sensor: the paper's, centred on the image and its focal scale times
+        ``min(W, H) / 600`` (the paper's sensor for 800x600)."""
+        from .design import design_values
+
+        return design_values({}, image_size=self.image_size)[0]
 
     def dataset(self):
         """Simulate the room (a :class:`~bayescal.Dataset`)."""
         from ..scene.simulate import simulate_room
 
         try:
-            return simulate_room(range_mm=self.range_mm, n_points=self.n_points,
+            p = self.sensor()
+            return simulate_room(p, nominal=p, range_mm=self.range_mm, n_points=self.n_points,
                                  n_walls=self.n_walls, sigma_px=self.sigma_px,
                                  approx_error=self.approx_error, sigma_3d=self.sigma_3d,
                                  approx_model=self.approx_model, rng=self.seed,

@@ -199,6 +199,14 @@ def main(argv=None):
     except Failure as exc:
         print(f"bayescal: failed: {op.cli_words(exc)}", file=stderr)
         return EXIT_FAILED
+    except (ArithmeticError, ValueError) as exc:
+        # numpy's LinAlgError is a ValueError; any other ValueError is a bug to show
+        if type(exc).__name__ != "LinAlgError" and not isinstance(exc, ArithmeticError):
+            raise
+        print(f"bayescal: failed: a matrix computation broke down on these data "
+              f"({type(exc).__name__}: {exc}); nothing was written. Check the input's sds "
+              "(none near zero) and rows (no duplicates)", file=stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         sys.stdout.flush()
         done = [f.target for f in folders if f.committed]

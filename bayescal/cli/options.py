@@ -306,6 +306,10 @@ SIMULATE_OPTIONS = (
     Opt(("--offset",), {"type": finite_float, "nargs": 2, "default": (0.0, 0.0),
                         "metavar": ("OX", "OY"), "help": "offset of the laser cone's apex "
                         "from the camera axis along x and y, mm"}),
+    Opt(("--image-size",), {"type": image_size, "default": (800, 600), "metavar": "WxH",
+                            "help": "the camera's image, width x height in px: another than "
+                            "the paper's 800x600 centres the sensor on it and scales its "
+                            "focal length by min(W, H) / 600"}),
     Opt(("--images",), {"action": "store_true", "help": "also render the room's camera "
                         "images: image.png (16-bit, laser on, lamps and a ghost), "
                         "image_off.png (laser off) and ring.csv (the true centre line)"}),

@@ -20,14 +20,16 @@ __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "
            "run_reconstruct", "run_report", "points_csv", "write_laser_pixels"]
 
 
-def write_simulation(folder, ds, *, seed):
+def write_simulation(folder, ds, *, seed, image_size=(800, 600)):
     """Write a simulated dataset as the files the other commands read; returns the paths.
 
     Files: ``laser.csv`` and ``laser.npz`` (u, v, x, y, z, sigma_x/y/z, sigma_px),
     ``calibration.npz`` (CalibrationData fields), ``grid.csv`` and
     ``calib_laser.csv`` (the same in CSV), ``walls.csv`` (the rough floor plan of
     the room, for ``calibrate --walls``), ``truth.json`` (true parameters, points
-    and walls, settings).
+    and walls, settings). The approximate points' sds are floored at
+    :data:`~bayescal.scene.simulate.SIGMA_SCENE_FLOOR_MM`; ``laser.csv`` starts with
+    ``# image_size: WxH`` (``image_size``, px).
     """
     from dataclasses import asdict
 
@@ -39,18 +41,23 @@ def write_simulation(folder, ds, *, seed):
         write_laser_npz,
     )
 
+    from ..scene.simulate import SIGMA_SCENE_FLOOR_MM
+
     p = folder.path
+    sigma_scene = np.maximum(ds.sigma_scene, SIGMA_SCENE_FLOOR_MM)
     pose = "" if ds.laser.is_aligned else (
         f", laser cone tilted ({np.degrees(ds.laser.tilt_x):g}, {np.degrees(ds.laser.tilt_y):g})"
         f" deg, offset ({ds.laser.offset_x:g}, {ds.laser.offset_y:g}) mm")
-    note = (f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
+    note = (f"image_size: {int(image_size[0])}x{int(image_size[1])}\n"
+            f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
             f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}){pose}, "
             f"seed {seed}\n"
             "u, v: laser pixel (px); x, y, z: approximate point (mm, frame C); sigma_*: its sd "
-            "(mm, inf = no information); sigma_px: pixel noise (px)")
-    write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+            f"(mm, at least {SIGMA_SCENE_FLOOR_MM:g}; inf = no information); sigma_px: pixel "
+            "noise (px)")
+    write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=sigma_scene,
                     sigma_px=ds.sigma_px, header_comment=note)
-    write_laser_npz(p / "laser.npz", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+    write_laser_npz(p / "laser.npz", ds.pixels, ds.approx_points, sigma_scene=sigma_scene,
                     sigma_px=ds.sigma_px)
     cal = ds.calibration
     write_calibration_npz(p / "calibration.npz", cal)
@@ -84,22 +91,24 @@ def write_simulation(folder, ds, *, seed):
 def run_simulate(job, folder):
     """Simulate and write the inputs of ``calibrate`` (see :func:`write_simulation`)."""
     ds = job.dataset()
-    files = write_simulation(folder, ds, seed=job.seed)
+    files = write_simulation(folder, ds, seed=job.seed, image_size=job.image_size)
     if job.images:
-        files += write_images(folder, ds, seed=job.seed)
+        files += write_images(folder, ds, seed=job.seed, image_size=job.image_size)
     for f in files:
         print(f"wrote {job.out / f.name}")
 
 
-def write_images(folder, ds, *, seed):
-    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``."""
+def write_images(folder, ds, *, seed, image_size=(800, 600)):
+    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``;
+    ``image_size`` (width, height) px."""
     import imageio.v3 as iio
 
     from ..io.data import _write_csv
     from ..scene.render import render_image
 
     img, truth = render_image(ds.params, ds.walls, n_lamps=2, ghost=0.3, bits=16,
-                              with_background=True, rng=seed, laser=ds.laser)
+                              with_background=True, rng=seed, laser=ds.laser,
+                              shape=(int(image_size[1]), int(image_size[0])))
     p = folder.path
     iio.imwrite(p / "image.png", img)
     iio.imwrite(p / "image_off.png", truth.background)

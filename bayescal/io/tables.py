@@ -30,6 +30,9 @@ PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
 #: the comment line that carries the image size: ``# image_size: 1280x1024`` (px)
 IMAGE_SIZE_KEY = "image_size"
 _META_RE = re.compile(r"^#\s*image_size\s*[:=]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
+#: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
+#: far below any approximate point's error; smaller values are numerical accidents
+MIN_SD = 1e-9
 #: what ``bayescal extract`` writes beside the pixels: peak over noise, distractor flag
 FLAG_COLUMNS = ("snr", "flagged")
 _KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane") + PIXEL_COV_COLUMNS
@@ -105,6 +108,11 @@ def _parse_cell(text, *, where, sigma):
     if sigma and value <= 0:
         raise InputError(f"{where}: {s!r} is not a valid standard deviation; expected a "
                          "positive number in mm (or empty/inf for 'no information')")
+    if sigma and value < MIN_SD:
+        raise InputError(f"{where}: {s!r} is not a measurement's standard deviation (below "
+                         f"{MIN_SD:g}; such a value comes from a relative error times a "
+                         "coordinate of ~0, and makes the fit's matrices singular); expected a "
+                         "realistic sd (or empty/inf for 'no information')")
     return value
 
 
@@ -229,7 +237,7 @@ def _read_npz(path, required, optional):
                   {k: v for k, v in scalars.items() if k in optional or k in required})
     for c, a in cols.items():
         sigma = c.startswith("sigma_")
-        bad = np.isnan(a) | (np.isinf(a) if not sigma else (a <= 0))
+        bad = np.isnan(a) | (np.isinf(a) if not sigma else (a < MIN_SD))
         if np.any(bad):
             k = int(np.argmax(bad))
             what = ("a positive number in mm (or inf for 'no information')" if sigma
