@@ -247,14 +247,13 @@ class CalibrateJob:
     def _read(o, given):
         """(LaserData or None, CalibrationData or None, FloorPlan or None, (image size,
         where it came from)), all checked; ``given`` the design values of ``--nominal``."""
-        from ..sensor.parameters import SensorParams
-
         from ..io.data import (
             check_pixels_in_image,
             check_projection_domain,
             load_calibration_data,
             load_laser_data,
         )
+        from ..sensor.parameters import SensorParams
 
         method, data, calib = o["method"], None, None
         if method != "sequential" and o["data"] is None:

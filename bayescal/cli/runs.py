@@ -40,7 +40,6 @@ def write_simulation(folder, ds, *, seed, image_size=(800, 600)):
         write_laser_csv,
         write_laser_npz,
     )
-
     from ..scene.simulate import SIGMA_SCENE_FLOOR_MM
 
     p = folder.path
