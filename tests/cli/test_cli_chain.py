@@ -2,10 +2,13 @@
 ``reconstruct`` with no hand editing, any camera size, extract's ``flagged`` column, and
 the papercuts a new user met (each where it can fail)."""
 
+import contextlib
+import io
 import json
 import os
 import re
 import stat
+import types
 
 import numpy as np
 import pytest
@@ -13,9 +16,21 @@ import pytest
 import bayescal as bc
 from bayescal.cli.main import main
 from bayescal.cli.options import cli_words
-from tests.cli.test_cli import run
 
 pytest.importorskip("imageio.v3")
+
+
+def run(*args, cwd):
+    """``bayescal ARGS`` in ``cwd``, in this process (no interpreter start per command);
+    returns ``returncode``, ``stdout``, ``stderr`` like a finished subprocess."""
+    out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in args])
+    finally:
+        os.chdir(here)
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def _numbers(path):
