@@ -10,7 +10,9 @@ figures of each method.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import os
 import subprocess
 import sys
@@ -70,12 +72,15 @@ def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
     scene = ({"walls": data / "walls.csv"} if stage == "floorplan"
              else {"calibration": data / "calibration.npz"})
     files = files or {"data": data / "laser.csv", "truth": data / "truth.json", **scene}
-    cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
-                              no_progress=not job.progress,
-                              allow_unconverged=job.allow_unconverged,
-                              out=job.out / stage, force=True,
-                              title=f"bayescal demo: {stage}", **files)
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):      # its notes name the staged files
+        cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
+                                  no_progress=not job.progress,
+                                  allow_unconverged=job.allow_unconverged,
+                                  out=job.out / stage, force=True,
+                                  title=f"bayescal demo: {stage}", **files)
     staged, final = str(root.path.resolve()), str(job.out.resolve())
+    print(said.getvalue().replace(staged, str(job.out)), end="")
     cjob = dataclasses.replace(cjob, inputs={k: v.replace(staged, final)
                                              for k, v in cjob.inputs.items()},
                                figures=tuple(figures))

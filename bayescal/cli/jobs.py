@@ -216,7 +216,7 @@ class CalibrateJob:
         given = read_nominal(o["nominal"])
         data, calib, plan, size = cls._read(o, given)
         nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
-                                                    data=data, plan=plan)
+                                                    data=data, plan=plan, with_derived=True)
         _note_design(size, derived, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)

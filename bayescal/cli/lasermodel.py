@@ -28,14 +28,16 @@ __all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS"]
 FITTED_MODELS = ("aligned", "misaligned")
 
 
-def nominal_and_prior(given, prior_specs, *, image_size, data=None, plan=None):
+def nominal_and_prior(given, prior_specs, *, image_size=(800, 600), data=None, plan=None,
+                      with_derived=False):
     """The nominal sensor (``--nominal``, in part or whole, the rest derived) and the
     priors (``--prior``), checked.
 
     Parameters
     ----------
-    given : dict
-        ``{name: value}`` of ``--nominal`` (:func:`bayescal.cli.design.read_nominal`).
+    given : dict, path or None
+        ``{name: value}`` of ``--nominal`` (:func:`bayescal.cli.design.read_nominal`), or
+        the ``--nominal`` file itself.
     prior_specs : list of (str, distribution) or None
         ``--prior`` values.
     image_size : (int, int)
@@ -43,6 +45,8 @@ def nominal_and_prior(given, prior_specs, *, image_size, data=None, plan=None):
         (:func:`bayescal.cli.design.design_values`).
     data, plan : LaserData, FloorPlan, optional
         What the focal scale is derived from.
+    with_derived : bool, optional
+        Also return ``derived``.
 
     Returns
     -------
@@ -53,23 +57,25 @@ def nominal_and_prior(given, prior_specs, *, image_size, data=None, plan=None):
         with the overrides (pose names included); None when the nominal is the paper's
         sensor and no ``--prior`` was given.
     derived : dict
-        ``{name: how}`` of the design values derived, not given.
+        ``{name: how}`` of the design values derived, not given (``with_derived`` only).
     """
     from scipy import stats
 
     from ..likelihood.priors import default_prior
-    from .design import centre_sd, design_values
+    from .design import centre_sd, design_values, read_nominal
 
+    if not isinstance(given, dict):
+        given = read_nominal(given)
     nominal, derived = design_values(given, image_size=image_size, data=data, plan=plan)
     overrides = dict(prior_specs or [])
     if not given and not derived and not overrides:
-        return nominal, None, derived
+        return (nominal, None, derived) if with_derived else (nominal, None)
     prior = default_prior(nominal)
     for name in ("u0", "v0"):
         if derived.get(name) == "image centre":
             prior[name] = stats.norm(getattr(nominal, name), centre_sd(image_size))
     prior.update(overrides)
-    return nominal, prior, derived
+    return (nominal, prior, derived) if with_derived else (nominal, prior)
 
 
 def model_setting(model, *, method, plan, prior_specs):

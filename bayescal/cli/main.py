@@ -113,11 +113,12 @@ _COMMANDS = {
                "calibrate' output folder into --out."),
     "study": (op.STUDY_OPTIONS, "run an uncertainty study from studies/NAME.py", None),
     "demo": (op.DEMO_OPTIONS, "the main job: simulate the paper's large room, calibrate it "
-             "three ways, write reports into --out",
+             "five ways, write reports into --out",
              "Simulate the paper's large room (5000 mm, 0.1 px, 5 percent approximate points, "
-             "a true sensor drawn off the design values), calibrate it three ways "
-             "(sequential, simultaneous, Bayesian) and write the data, the reports and "
-             "index.html into --out."),
+             "a true sensor drawn off the design values), calibrate it five ways (the pixels "
+             "extracted from its rendered laser image on its rough floor plan; the simulated "
+             "points sequential, simultaneous and Bayesian; the simulated pixels on the floor "
+             "plan) and write the data, the reports and index.html into --out."),
 }
 
 
