@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import UsageError
 
 __all__ = ["PAPER_IMAGE_SIZE", "read_nominal", "image_size_setting", "design_values",
-           "centre_sd"]
+           "centre_sd", "note_flagged", "note_design"]
 
 #: the paper's image, width x height in px: its design values are the paper's sensor
 PAPER_IMAGE_SIZE = (800, 600)
@@ -162,3 +162,21 @@ def design_values(given, *, image_size, data=None, plan=None):
         return SensorParams(**base), derived
     except (TypeError, ValueError) as exc:
         raise UsageError(f"--nominal: {exc}") from None
+
+
+def note_flagged(table, n_kept, what):
+    """Say which rows ``bayescal extract`` flagged and the job leaves out."""
+    lines = table.dropped
+    if lines:
+        unit = "lines" if table.kind == "csv" else "rows"
+        shown = ", ".join(map(str, lines[:20])) + (" ..." if len(lines) > 20 else "")
+        print(f"{table.path}: {len(lines)} of {len(lines) + n_kept} points flagged by "
+              f"extract (flagged = 1) left out of the {what}: {unit} {shown}")
+
+
+def note_design(size, derived, nominal):
+    """Say which design values came from the image size or the data, not ``--nominal``."""
+    if derived:
+        vals = ", ".join(f"{n} = {getattr(nominal, n):.6g} ({how})" for n, how in derived.items())
+        print(f"image {size[0][0]}x{size[0][1]} ({size[1]}): design values {vals}; give "
+              "--nominal to set them")

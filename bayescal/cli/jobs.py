@@ -29,7 +29,7 @@ from ..checks.datafile import (
 from ..errors import UsageError
 from ..io.outputs import check_out
 from . import options as op
-from .design import image_size_setting, read_nominal
+from .design import image_size_setting, note_design, note_flagged, read_nominal
 from .lasermodel import model_setting, nominal_and_prior
 from .pixelcov import pixel_cov_setting
 
@@ -217,7 +217,7 @@ class CalibrateJob:
         data, calib, plan, size = cls._read(o, given)
         nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
                                                     data=data, plan=plan, with_derived=True)
-        _note_design(size, derived, nominal)
+        note_design(size, derived, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
@@ -269,7 +269,7 @@ class CalibrateJob:
         if o["data"] is not None:
             data = load_laser_data(o["data"], o["points"],
                                    need_points=method != "sequential" and plan is None)
-            _note_flagged(data.pixel_table, data.n_points, "calibration")
+            note_flagged(data.pixel_table, data.n_points, "calibration")
         size = image_size_setting(o["image_size"], data)
         if data is not None:
             check_pixels_in_image(data.pixels, data.pixel_table, image_size=size[0],
@@ -281,24 +281,6 @@ class CalibrateJob:
                                         SensorParams(**{**SensorParams.paper().as_dict(),
                                                         **given}))
         return data, calib, plan, size
-
-
-def _note_flagged(table, n_kept, what):
-    """Say which rows ``bayescal extract`` flagged and the job leaves out."""
-    lines = table.dropped
-    if lines:
-        unit = "lines" if table.kind == "csv" else "rows"
-        shown = ", ".join(map(str, lines[:20])) + (" ..." if len(lines) > 20 else "")
-        print(f"{table.path}: {len(lines)} of {len(lines) + n_kept} points flagged by "
-              f"extract (flagged = 1) left out of the {what}: {unit} {shown}")
-
-
-def _note_design(size, derived, nominal):
-    """Say which design values came from the image size or the data, not ``--nominal``."""
-    if derived:
-        vals = ", ".join(f"{n} = {getattr(nominal, n):.6g} ({how})" for n, how in derived.items())
-        print(f"image {size[0][0]}x{size[0][1]} ({size[1]}): design values {vals}; give "
-              "--nominal to set them")
 
 
 def _read_plan(o):
@@ -389,7 +371,7 @@ class ReconstructJob:
                                           center=(result.params.u0, result.params.v0)))
                 continue
             pixels, table = load_pixels(path)
-            _note_flagged(table, len(pixels), "reconstruction")
+            note_flagged(table, len(pixels), "reconstruction")
             size = (o["image_size"] or table.meta.get("image_size")
                     or tuple(info.get("image_size") or ()) or None)
             size, _ = image_size_setting(size, None)

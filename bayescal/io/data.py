@@ -20,8 +20,8 @@ File formats (``docs/cli.md`` has examples):
   ``cov_uu, cov_uv, cov_vv``
       optional per-point pixel covariance, px^2;
   ``snr, flagged``
-      what ``bayescal extract`` writes: rows with ``flagged = 1`` (likely
-      distractors) are left out (:attr:`LaserData.flagged_lines` lists them).
+      from ``bayescal extract``: rows with ``flagged = 1`` are left out
+      (:attr:`LaserData.flagged_lines`).
 
   Lines starting with ``#`` and blank lines are skipped; line numbers in
   messages count every line of the file, the header being line 1. A comment
@@ -59,6 +59,7 @@ from .tables import (
     SIGMA_COLUMNS,
     Table,
     drop_flagged,
+    parse_image_size,
     read_table,
 )
 
@@ -105,8 +106,7 @@ class LaserData:
 
     @property
     def flagged_lines(self):
-        """Lines (NPZ: indices) of the rows left out because ``bayescal extract`` flagged
-        them (``flagged = 1``); empty when none was."""
+        """Lines (NPZ: indices) of the rows left out as ``flagged = 1``; empty if none."""
         return self.pixel_table.dropped
 
     @property
@@ -260,18 +260,6 @@ def duplicate_rows(data):
     for g in np.flatnonzero(counts > 1):
         groups.append([int(lines[i]) for i in np.flatnonzero(inverse == g)])
     return sorted(groups)
-
-
-def parse_image_size(text):
-    """Parse ``"WIDTHxHEIGHT"`` (px) into ``(width, height)`` ints."""
-    try:
-        w, h = (int(s) for s in str(text).lower().split("x"))
-    except ValueError:
-        raise ValueError(f"image size must look like 800x600 (width x height in px), "
-                         f"got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise ValueError(f"image size must be positive, got {text!r}")
-    return w, h
 
 
 def check_pixels_in_image(pixels, table, *, image_size, margin):

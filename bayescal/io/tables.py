@@ -20,8 +20,8 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Table", "read_table", "drop_flagged", "LASER_COLUMNS", "SIGMA_COLUMNS",
-           "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY"]
+__all__ = ["Table", "read_table", "drop_flagged", "parse_image_size", "LASER_COLUMNS",
+           "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY"]
 
 LASER_COLUMNS = ("u", "v", "x", "y", "z")
 SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
@@ -274,6 +274,18 @@ def read_table(path, *, required, optional=()):
     if path.suffix.lower() == ".npz":
         return _read_npz(path, tuple(required), tuple(optional))
     return _read_csv(path, tuple(required), tuple(optional))
+
+
+def parse_image_size(text):
+    """Parse ``"WIDTHxHEIGHT"`` (px) into ``(width, height)`` ints."""
+    try:
+        w, h = (int(s) for s in str(text).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"image size must look like 800x600 (width x height in px), "
+                         f"got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise ValueError(f"image size must be positive, got {text!r}")
+    return w, h
 
 
 def drop_flagged(table, *others):
