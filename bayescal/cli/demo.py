@@ -10,7 +10,9 @@ figures of each method.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import os
 import subprocess
 import sys
@@ -70,12 +72,15 @@ def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
     scene = ({"walls": data / "walls.csv"} if stage == "floorplan"
              else {"calibration": data / "calibration.npz"})
     files = files or {"data": data / "laser.csv", "truth": data / "truth.json", **scene}
-    cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
-                              no_progress=not job.progress,
-                              allow_unconverged=job.allow_unconverged,
-                              out=job.out / stage, force=True,
-                              title=f"bayescal demo: {stage}", **files)
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):      # its notes name the staged files
+        cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
+                                  no_progress=not job.progress,
+                                  allow_unconverged=job.allow_unconverged,
+                                  out=job.out / stage, force=True,
+                                  title=f"bayescal demo: {stage}", **files)
     staged, final = str(root.path.resolve()), str(job.out.resolve())
+    print(said.getvalue().replace(staged, str(job.out)), end="")
     cjob = dataclasses.replace(cjob, inputs={k: v.replace(staged, final)
                                              for k, v in cjob.inputs.items()},
                                figures=tuple(figures))
@@ -96,13 +101,13 @@ def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
 
 def _image_inputs(job, root, ds):
     """Render the room's laser image and its laser-off image (``data/``), extract the laser
-    (``image/laser.csv``, as ``bayescal extract``) and write the stage's inputs: the unflagged
-    pixels with their covariances (``image/laser_used.csv``), their truth
-    (``image/truth.json``) and the extraction overlay. Returns (files, figures)."""
+    (``image/laser.csv``, as ``bayescal extract``: calibrate leaves its flagged rows out) and
+    write the truth of its unflagged pixels (``image/truth.json``) and the extraction
+    overlay. Returns (files, figures)."""
     import imageio.v3 as iio
 
     from ..image.extract import extract_laser
-    from ..io.data import _write_csv, write_json
+    from ..io.data import write_json
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
     from ..scene.render import render_image
@@ -118,22 +123,17 @@ def _image_inputs(job, root, ds):
     print(f"extracted {len(lp)} laser pixels from data/laser_image.png ({int(k.sum())} "
           f"unflagged, median sd across the ring {np.median(lp.sd_normal[k]):.3f} px)")
     laser = write_laser_pixels(sub.path / "laser.csv", lp, "laser_image.png",
-                               extra_note=f" (along_sd {IMAGE_ALONG_SD:g} px)")
-    used = sub.path / "laser_used.csv"
-    _write_csv(used, {"u": lp.pixels[k, 0], "v": lp.pixels[k, 1],
-                      "cov_uu": lp.covariance[k, 0, 0], "cov_uv": lp.covariance[k, 0, 1],
-                      "cov_vv": lp.covariance[k, 1, 1]},
-               header_comment="bayescal demo: the unflagged rows of laser.csv (the input of "
-               "the image stage)")
+                               extra_note=f" (along_sd {IMAGE_ALONG_SD:g} px)",
+                               image_size=img.shape[1::-1])
     truth = sub.path / "truth.json"
     write_json(truth, {"params": ds.params.as_dict(), "walls": ds.walls,
                        "points": _true_points(ds.params, lp.pixels[k], tr),
                        "n_points": int(k.sum()), "accuracy_note": IMAGE_TRUTH_NOTE})
     overlay = savefig(plot_laser_overlay(img, lp), sub.path / "overlay.png")
-    sub.add(laser, used, truth, sub.path / "overlay.png")
+    sub.add(laser, truth, sub.path / "overlay.png")
     # the covariances' global scale inferred: at 5000 mm they are ~1.2x too small
     # (docs/images.md), and the stage's model check fails with them as they are
-    files = {"data": used, "truth": truth, "walls": data.path / "walls.csv",
+    files = {"data": laser, "truth": truth, "walls": data.path / "walls.csv",
              "sigma_px": "infer"}
     return files, [("Laser extraction: the laser image with the extracted pixels (colour: "
                     "sd across the ring; red crosses: flagged, not used)", overlay)]

@@ -28,8 +28,10 @@ from ..checks.datafile import (
 )
 from ..errors import UsageError
 from ..io.outputs import check_out
+from ..sensor.parameters import CAMERA_PARAM_NAMES
 from . import options as op
-from .lasermodel import camera_setting, model_setting, nominal_and_prior
+from .design import image_size_setting, note_design, note_flagged, read_nominal
+from .lasermodel import camera_nominal, model_setting, nominal_and_prior, read_camera
 from .pixelcov import pixel_cov_setting
 
 __all__ = ["SimulateJob", "ExtractJob",
@@ -68,6 +70,7 @@ class SimulateJob:
     images: bool = False
     tilt: tuple = (0.0, 0.0)
     offset: tuple = (0.0, 0.0)
+    image_size: tuple = (800, 600)
 
     @classmethod
     def build(cls, **options):
@@ -75,14 +78,23 @@ class SimulateJob:
         o = _opts(op.SIMULATE_OPTIONS, options)
         check_out(o["out"], force=o["force"])
         o["out"] = pathlib.Path(o["out"])
+        o["image_size"] = tuple(int(v) for v in o["image_size"])
         return cls(**{k: o[k] for k in cls.__dataclass_fields__})
+
+    def sensor(self):
+        """The simulated sensor: the paper's, centred on the image and its focal scale times
+        ``min(W, H) / 600`` (the paper's sensor for 800x600)."""
+        from .design import design_values
+
+        return design_values({}, image_size=self.image_size)[0]
 
     def dataset(self):
         """Simulate the room (a :class:`~bayescal.Dataset`)."""
         from ..scene.simulate import simulate_room
 
         try:
-            return simulate_room(range_mm=self.range_mm, n_points=self.n_points,
+            p = self.sensor()
+            return simulate_room(p, nominal=p, range_mm=self.range_mm, n_points=self.n_points,
                                  n_walls=self.n_walls, sigma_px=self.sigma_px,
                                  approx_error=self.approx_error, sigma_3d=self.sigma_3d,
                                  approx_model=self.approx_model, rng=self.seed,
@@ -195,20 +207,28 @@ class CalibrateJob:
     model: str = "aligned"
     model_note: str | None = None
     camera: object = None
+    image_size_how: str = "--image-size"
+    derived: dict = field(default_factory=dict)
 
     @classmethod
     def build(cls, *, title=None, **options):
         """Validated job from option values (:data:`~bayescal.cli.options.CALIBRATE_OPTIONS`)."""
         o = _opts(op.CALIBRATE_OPTIONS, options)
-        method = o["method"]
+        method = o["method"] = op.method_option(o["method"])
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
-        nominal, prior = nominal_and_prior(o["nominal"], o["prior"])
+        given = read_nominal(o["nominal"])
         camera = None
-        if o["camera"] is not None:             # the camera's prior, nominal and image size
-            camera, nominal, prior, size = camera_setting(o["camera"], nominal, o["prior"])
-            o["image_size"] = size or o["image_size"]
-        data, calib, plan = cls._read(o, nominal)
+        if o["camera"] is not None:         # its image size is the data's: read it first
+            camera, camera_size = read_camera(o["camera"])
+            o["image_size"] = camera_size or o["image_size"]
+        data, calib, plan, size = cls._read(o, given)
+        nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
+                                                    data=data, plan=plan, with_derived=True)
+        if camera is not None:              # its intrinsics: the nominal camera and prior
+            nominal, prior = camera_nominal(camera, o["camera"], nominal, o["prior"])
+            derived = {k: v for k, v in derived.items() if k not in CAMERA_PARAM_NAMES}
+        note_design(size, derived, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
         truth = load_truth(o["truth"], None if data is None else data.n_points)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
@@ -225,23 +245,26 @@ class CalibrateJob:
         check_out(o["out"], force=o["force"], inputs=[o[k] for k in names])
         return cls(method=method, data=data, calib=calib, nominal=nominal, prior=prior,
                    truth=truth, sigma_px=spx, sigma_px_how=spx_how, sigma_scene=ssc,
-                   sigma_scene_how=ssc_how, image_size=tuple(o["image_size"]), seed=o["seed"],
+                   sigma_scene_how=ssc_how, image_size=size[0], seed=o["seed"],
                    max_steps=o["max_steps"], progress=not o["no_progress"],
                    allow_unconverged=o["allow_unconverged"], out=pathlib.Path(o["out"]),
                    force=o["force"], inputs={k: _resolved(o[k]) for k in names if o[k]},
                    title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
                    plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups),
-                   model=model, model_note=note, camera=camera)
+                   model=model, model_note=note, camera=camera,
+                   image_size_how=size[1], derived=derived)
 
     @staticmethod
-    def _read(o, nominal):
-        """(LaserData or None, CalibrationData or None, FloorPlan or None), all checked."""
+    def _read(o, given):
+        """(LaserData or None, CalibrationData or None, FloorPlan or None, (image size,
+        where it came from)), all checked; ``given`` the design values of ``--nominal``."""
         from ..io.data import (
             check_pixels_in_image,
             check_projection_domain,
             load_calibration_data,
             load_laser_data,
         )
+        from ..sensor.parameters import SensorParams
 
         method, data, calib = o["method"], None, None
         if method != "sequential" and o["data"] is None:
@@ -257,13 +280,18 @@ class CalibrateJob:
         if o["data"] is not None:
             data = load_laser_data(o["data"], o["points"],
                                    need_points=method != "sequential" and plan is None)
-            check_pixels_in_image(data.pixels, data.pixel_table, image_size=o["image_size"],
+            note_flagged(data.pixel_table, data.n_points, "calibration")
+        size = image_size_setting(o["image_size"], data)
+        if data is not None:
+            check_pixels_in_image(data.pixels, data.pixel_table, image_size=size[0],
                                   margin=o["image_margin"])
             if plan is not None:       # the plan is the scene: x, y, z columns are not used
                 data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
-            if data.approx_points is not None:
-                check_projection_domain(data.approx_points, data.point_table, nominal)
-        return data, calib, plan
+            if data.approx_points is not None:        # xi alone decides the domain
+                check_projection_domain(data.approx_points, data.point_table,
+                                        SensorParams(**{**SensorParams.paper().as_dict(),
+                                                        **given}))
+        return data, calib, plan, size
 
 
 def _read_plan(o):
@@ -340,7 +368,7 @@ class ReconstructJob:
 
         o = _opts(op.RECONSTRUCT_OPTIONS, options)
         run = pathlib.Path(o["run"])
-        result, _ = _load_run(run)
+        result, info = _load_run(run)
         paths = o["pixels"] if isinstance(o["pixels"], (list, tuple)) else [o["pixels"]]
         stems = [pathlib.Path(p).stem for p in paths]
         if len(set(stems)) < len(stems):
@@ -354,8 +382,11 @@ class ReconstructJob:
                                           center=(result.params.u0, result.params.v0)))
                 continue
             pixels, table = load_pixels(path)
-            check_pixels_in_image(pixels, table, image_size=o["image_size"],
-                                  margin=o["image_margin"])
+            note_flagged(table, len(pixels), "reconstruction")
+            size = (o["image_size"] or table.meta.get("image_size")
+                    or tuple(info.get("image_size") or ()) or None)
+            size, _ = image_size_setting(size, None)
+            check_pixels_in_image(pixels, table, image_size=size, margin=o["image_margin"])
             frames.append((pathlib.Path(path), pixels, pixel_covariance(table)))
         check_out(o["out"], force=o["force"], inputs=[*paths, run])
         return cls(frames=tuple(frames), result=result, sigma_px=o["sigma_px"],
@@ -385,18 +416,21 @@ class ReportJob:
         run = pathlib.Path(o["run"])
         result, info = _load_run(run)
         ins = info.get("inputs", {})
-        if not ins.get("data"):
+        sequential = info.get("method") == "sequential"
+        if not ins.get("data") and not sequential:
             raise UsageError(f"{run}: the run names no laser data file; nothing to report on")
         try:
             plan = plan_from_record(info.get("plan"))
         except ValueError as exc:
             raise UsageError(f"{run}: {exc}") from None
-        data = load_laser_data(ins["data"], ins.get("points"),
-                               need_points=info.get("method") != "sequential" and plan is None)
+        data = None
+        if ins.get("data"):       # a sequential run may have none: its report has no points
+            data = load_laser_data(ins["data"], ins.get("points"),
+                                   need_points=not sequential and plan is None)
         if plan is not None:
             data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
-        truth = load_truth(o["truth"] or ins.get("truth"), data.n_points)
-        check_out(o["out"], force=o["force"], inputs=[run] + data.paths)
+        truth = load_truth(o["truth"] or ins.get("truth"), None if data is None else data.n_points)
+        check_out(o["out"], force=o["force"], inputs=[run] + ([] if data is None else data.paths))
         return cls(run=run, result=result, run_info=info, data=data, truth=truth,
                    out=pathlib.Path(o["out"]), force=o["force"], plan=plan)
 

@@ -23,47 +23,61 @@ from ..errors import Failure, UsageError
 from ..sensor.pose import POSE_NAMES
 
 __all__ = ["nominal_and_prior", "model_setting", "ModelChoice", "FITTED_MODELS", "camera_setting",
+           "read_camera", "camera_nominal",
            "CAMERA_FILE"]
 
 #: the models a fit can have (``auto`` picks one of them)
 FITTED_MODELS = ("aligned", "misaligned")
 
 
-def nominal_and_prior(nominal_path, prior_specs):
-    """The nominal sensor (``--nominal``) and the priors (``--prior``), checked.
+def nominal_and_prior(given, prior_specs, *, image_size=(800, 600), data=None, plan=None,
+                      with_derived=False):
+    """The nominal sensor (``--nominal``, in part or whole, the rest derived) and the
+    priors (``--prior``), checked.
+
+    Parameters
+    ----------
+    given : dict, path or None
+        ``{name: value}`` of ``--nominal`` (:func:`bayescal.cli.design.read_nominal`), or
+        the ``--nominal`` file itself.
+    prior_specs : list of (str, distribution) or None
+        ``--prior`` values.
+    image_size : (int, int)
+        px; another than the paper's 800x600 derives the design values not given
+        (:func:`bayescal.cli.design.design_values`).
+    data, plan : LaserData, FloorPlan, optional
+        What the focal scale is derived from.
+    with_derived : bool, optional
+        Also return ``derived``.
 
     Returns
     -------
     nominal : SensorParams
     prior : dict or None
-        ``{name: frozen distribution}``: the defaults centred on ``nominal`` with the
-        overrides (pose names included); None when neither option was given.
+        ``{name: frozen distribution}``: the defaults centred on ``nominal`` (a principal
+        point at the image centre gets the sd of :func:`~bayescal.cli.design.centre_sd`)
+        with the overrides (pose names included); None when the nominal is the paper's
+        sensor and no ``--prior`` was given.
+    derived : dict
+        ``{name: how}`` of the design values derived, not given (``with_derived`` only).
     """
-    from ..io.data import read_json
-    from ..likelihood.priors import default_prior
-    from ..sensor.parameters import PARAM_NAMES, SensorParams
+    from scipy import stats
 
-    nominal = SensorParams.paper()
-    if nominal_path is not None:
-        raw = read_json(nominal_path)
-        raw = raw.get("params", raw) if isinstance(raw, dict) else raw
-        if not isinstance(raw, dict):
-            raise UsageError(f"--nominal {nominal_path}: expected a JSON object of the 8 "
-                             "parameters")
-        missing = [n for n in PARAM_NAMES if n not in raw]
-        if missing:
-            raise UsageError(f"--nominal {nominal_path}: missing parameter(s) "
-                             f"{', '.join(missing)}; expected all of {', '.join(PARAM_NAMES)}")
-        try:
-            nominal = SensorParams(**{n: raw[n] for n in PARAM_NAMES})
-        except (TypeError, ValueError) as exc:
-            raise UsageError(f"--nominal {nominal_path}: {exc}") from None
+    from ..likelihood.priors import default_prior
+    from .design import centre_sd, design_values, read_nominal
+
+    if not isinstance(given, dict):
+        given = read_nominal(given)
+    nominal, derived = design_values(given, image_size=image_size, data=data, plan=plan)
     overrides = dict(prior_specs or [])
-    if nominal_path is None and not overrides:
-        return nominal, None
+    if not given and not derived and not overrides:
+        return (nominal, None, derived) if with_derived else (nominal, None)
     prior = default_prior(nominal)
+    for name in ("u0", "v0"):
+        if derived.get(name) == "image centre":
+            prior[name] = stats.norm(getattr(nominal, name), centre_sd(image_size))
     prior.update(overrides)
-    return nominal, prior
+    return (nominal, prior, derived) if with_derived else (nominal, prior)
 
 
 def model_setting(model, *, method, plan, prior_specs):
@@ -200,7 +214,6 @@ class ModelChoice:
 
 #: the file ``bayescal calibrate-camera`` writes into its output folder
 CAMERA_FILE = "camera.json"
-_CAMERA_PAPER = ("xi", "alpha_u", "alpha_v", "u0", "v0")
 
 
 def camera_setting(path, nominal, prior_specs):
@@ -234,13 +247,23 @@ def camera_setting(path, nominal, prior_specs):
         No camera file there, a file that is not a camera result, or a ``--prior`` of
         one of the five (exit 2, nothing written).
     """
+    camera, size = read_camera(path)
+    nominal, prior = camera_nominal(camera, path, nominal, prior_specs)
+    return camera, nominal, prior, size
+
+
+def read_camera(path):
+    """The camera result of ``--camera`` and its image size (or None).
+
+    Raises
+    ------
+    UsageError
+        No camera file there, or a file that is not a camera result.
+    """
     import pathlib
 
-    import numpy as np
-
-    from ..likelihood.priors import default_prior
     from ..results.camera import load_camera
-    from ..sensor.parameters import SensorParams, camera_moments
+    from ..sensor.parameters import camera_moments
 
     p = pathlib.Path(path)
     p = p / CAMERA_FILE if p.is_dir() else p
@@ -249,16 +272,27 @@ def camera_setting(path, nominal, prior_specs):
                          "'bayescal calibrate-camera' writes, or its folder)")
     try:
         camera = load_camera(p)
-        mean, _ = camera_moments(camera)
-        nominal = SensorParams.from_identifiable(np.r_[mean, nominal.h, nominal.beta],
-                                                 nominal.phi)
+        camera_moments(camera)
     except (TypeError, ValueError, KeyError) as exc:
         raise UsageError(f"--camera {p}: not a usable camera calibration ({exc})") from None
-    clash = [name for name, _ in prior_specs or [] if name in _CAMERA_PAPER]
-    if clash:
-        raise UsageError(f"--prior {clash[0]}=...: --camera {p} gives the prior of xi, "
-                         "alpha_u, alpha_v, u0 and v0; leave them out")
-    prior = {n: d for n, d in default_prior(nominal).items() if n not in _CAMERA_PAPER}
-    prior.update(dict(prior_specs or []))
     size = getattr(camera, "image_size", None)
-    return camera, nominal, prior, None if size is None else tuple(int(s) for s in size)
+    return camera, None if size is None else tuple(int(s) for s in size)
+
+
+def camera_nominal(camera, path, nominal, prior_specs):
+    """The nominal sensor with ``camera``'s intrinsics and the priors left to the laser
+    stage (see :func:`camera_setting`)."""
+    import numpy as np
+
+    from ..likelihood.priors import default_prior
+    from ..sensor.parameters import CAMERA_PARAM_NAMES, SensorParams, camera_moments
+
+    mean, _ = camera_moments(camera)
+    nominal = SensorParams.from_identifiable(np.r_[mean, nominal.h, nominal.beta], nominal.phi)
+    clash = [name for name, _ in prior_specs or [] if name in CAMERA_PARAM_NAMES]
+    if clash:
+        raise UsageError(f"--prior {clash[0]}=...: --camera {path} gives the prior of xi, "
+                         "alpha_u, alpha_v, u0 and v0; leave them out")
+    prior = {n: d for n, d in default_prior(nominal).items() if n not in CAMERA_PARAM_NAMES}
+    prior.update(dict(prior_specs or []))
+    return nominal, prior

@@ -121,11 +121,12 @@ _COMMANDS = {
                          "into --out."),
     "study": (op.STUDY_OPTIONS, "run an uncertainty study from studies/NAME.py", None),
     "demo": (op.DEMO_OPTIONS, "the main job: simulate the paper's large room, calibrate it "
-             "three ways, write reports into --out",
+             "five ways, write reports into --out",
              "Simulate the paper's large room (5000 mm, 0.1 px, 5 percent approximate points, "
-             "a true sensor drawn off the design values), calibrate it three ways "
-             "(sequential, simultaneous, Bayesian) and write the data, the reports and "
-             "index.html into --out."),
+             "a true sensor drawn off the design values), calibrate it five ways (the pixels "
+             "extracted from its rendered laser image on its rough floor plan; the simulated "
+             "points sequential, simultaneous and Bayesian; the simulated pixels on the floor "
+             "plan) and write the data, the reports and index.html into --out."),
 }
 
 
@@ -196,17 +197,26 @@ def main(argv=None):
 
     matplotlib.use("agg")              # files only, never a window
     stdout, stderr, show = sys.stdout, sys.stderr, warnings.showwarning
-    warnings.showwarning = lambda msg, *a, **k: print(f"bayescal: warning: {msg}", file=stderr)
+    warnings.showwarning = lambda msg, *a, **k: print(f"bayescal: warning: {op.cli_words(msg)}",
+                                                      file=stderr)
     old, folders = None, []
     if threading.current_thread() is threading.main_thread():
         old = signal.signal(signal.SIGINT, _on_sigint)
     try:
         return _run(args, folders)
     except (UsageError, InputError) as exc:
-        print(f"bayescal: error: {exc}", file=stderr)
+        print(f"bayescal: error: {op.cli_words(exc)}", file=stderr)
         return EXIT_USAGE
     except Failure as exc:
-        print(f"bayescal: failed: {exc}", file=stderr)
+        print(f"bayescal: failed: {op.cli_words(exc)}", file=stderr)
+        return EXIT_FAILED
+    except (ArithmeticError, ValueError) as exc:
+        # numpy's LinAlgError is a ValueError; any other ValueError is a bug to show
+        if type(exc).__name__ != "LinAlgError" and not isinstance(exc, ArithmeticError):
+            raise
+        print(f"bayescal: failed: a matrix computation broke down on these data "
+              f"({type(exc).__name__}: {exc}); nothing was written. Check the input's sds "
+              "(none near zero) and rows (no duplicates)", file=stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:
         sys.stdout.flush()

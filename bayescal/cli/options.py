@@ -24,12 +24,44 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "prior_option", "input_file", "input_folder", "SigmaScene", "distance_sd_option",
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
            "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS", "LASER_MODELS",
-           "finite_float", "board_size", "CALIBRATE_CAMERA_OPTIONS", "CAMERA_NOISE"]
+           "finite_float", "board_size", "CALIBRATE_CAMERA_OPTIONS", "CAMERA_NOISE",
+           "cli_words", "method_option"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
+#: other names ``--method`` takes: the simultaneous method is a least-squares fit
+_METHOD_ALIASES = {"lsq": "simultaneous", "least-squares": "simultaneous",
+                   "least_squares": "simultaneous", "ls": "simultaneous"}
 #: ``--model``: the paper's coaxial cone, a tilted and offset one, or the better of both
 LASER_MODELS = ("aligned", "misaligned", "auto")
 _BAD = argparse.ArgumentTypeError
+
+
+# -- the library's advice in the command line's words --------------------------------
+
+#: library advice that names Python arguments, and what the command line calls them
+_CLI_WORDS = ((re.compile(r"\boutliers=False\b"), "--no-outliers"),
+              (re.compile(r"\bgive (sigma_px|sigma_scene|kappa) explicitly"),
+               lambda m: "give --sigma-px" if m.group(1) == "sigma_px" else
+               "give --sigma-scene"),
+              (re.compile(r"\bmax_steps=(\d+)"), r"--max-steps \1"),
+              (re.compile(r"\bextract_laser\(along_sd=([\d.]+)\)"),
+               r"bayescal extract --along-sd \1"))
+
+
+def cli_words(text):
+    """``text`` (a library message) with its Python arguments named as the command line's
+    options, e.g. ``outliers=False`` -> ``--no-outliers``."""
+    text = str(text)
+    for pattern, repl in _CLI_WORDS:
+        text = pattern.sub(repl, text)
+    return text
+
+
+def method_option(text):
+    """``--method``: a name of :data:`METHODS`, or ``lsq`` / ``least-squares`` for the
+    simultaneous least squares."""
+    t = str(text).strip().lower()
+    return _METHOD_ALIASES.get(t, t)
 
 
 # -- validators -------------------------------------------------------------------
@@ -245,9 +277,13 @@ def _out(default):
 
 
 _SEED = Opt(("--seed",), {"type": seed, "default": 0, "help": "random seed, an integer >= 0"})
-_IMAGE = (Opt(("--image-size",), {"type": image_size, "default": (800, 600), "metavar": "WxH",
-                                  "help": "image width x height in px; pixels further than "
-                                  "--image-margin outside it are rejected as bad input"}),
+_IMAGE = (Opt(("--image-size",), {"type": image_size, "metavar": "WxH",
+                                  "help": "image width x height in px (default: the data "
+                                  "file's '# image_size: WxH' line, which extract writes, "
+                                  "else 800x600, the paper's sensor); pixels further than "
+                                  "--image-margin outside it are rejected as bad input; "
+                                  "another size centres the design values on it "
+                                  "(docs/cli.md)"}),
           Opt(("--image-margin",), {"type": nonneg_float, "default": 50.0, "metavar": "PX",
                                     "help": "tolerance around the image, px"}))
 
@@ -271,6 +307,10 @@ SIMULATE_OPTIONS = (
     Opt(("--offset",), {"type": finite_float, "nargs": 2, "default": (0.0, 0.0),
                         "metavar": ("OX", "OY"), "help": "offset of the laser cone's apex "
                         "from the camera axis along x and y, mm"}),
+    Opt(("--image-size",), {"type": image_size, "default": (800, 600), "metavar": "WxH",
+                            "help": "the camera's image, width x height in px: another than "
+                            "the paper's 800x600 centres the sensor on it and scales its "
+                            "focal length by min(W, H) / 600"}),
     Opt(("--images",), {"action": "store_true", "help": "also render the room's camera "
                         "images: image.png (16-bit, laser on, lamps and a ghost), "
                         "image_off.png (laser off) and ring.csv (the true centre line)"}),
@@ -296,8 +336,8 @@ CALIBRATE_OPTIONS = (
     Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
                              "point is an inlier (default: each point may be an outlier, "
                              "see outlier_prob in points.csv)"}),
-    Opt(("--method",), {"choices": METHODS, "default": "simultaneous",
-                        "help": "calibration method"}),
+    Opt(("--method",), {"type": method_option, "choices": METHODS, "default": "simultaneous",
+                        "help": "calibration method (lsq: the simultaneous least squares)"}),
     Opt(("--model",), {"choices": LASER_MODELS, "default": "aligned",
                        "help": "laser model: aligned (the paper's cone, coaxial with the "
                        "camera), misaligned (its tilt and offset fitted too: four more "
@@ -315,9 +355,11 @@ CALIBRATE_OPTIONS = (
                              "points: mm, 'sx,sy,sz' (inf allowed), a percentage of each "
                              "point's horizontal range like '5%%', or 'infer' (default: the "
                              "file's sigma columns, else infer)"}),
-    Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values of "
-                         "the 8 parameters (JSON object, or one with a 'params' object); "
-                         "centres the default priors (default: the paper's sensor)"}),
+    Opt(("--nominal",), {"type": input_file, "metavar": "JSON", "help": "design values "
+                         "(JSON object, or one with a 'params' object) of any of the 8 "
+                         "parameters, e.g. {\"u0\": 640, \"v0\": 512}; they centre the default "
+                         "priors. The rest: the paper's sensor for an 800x600 image, else "
+                         "derived from the image size and the data (docs/cli.md)"}),
     Opt(("--camera",), {"type": pathlib.Path, "metavar": "PATH", "help": "a camera calibrated "
                         "beforehand: the camera.json of 'bayescal calibrate-camera' or its "
                         "folder. Its intrinsics and their covariance become the prior of xi, "

@@ -49,5 +49,5 @@ def _warn_loose_along(data, limit_px=2.0):
                       "(along the ring) leave each point's azimuth to the ring's shape; "
                       "the least squares copes, the posterior may not converge "
                       "(docs/images.md): give sds along the ring of about 1 px "
-                      "(extract_laser(along_sd=1))",
+                      "(bayescal extract --along-sd 1)",
                       stacklevel=3)

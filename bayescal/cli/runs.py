@@ -13,20 +13,23 @@ import numpy as np
 from ..errors import DegenerateInputError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..sensor.pose import POSE_NAMES
+from .options import cli_words
 from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
            "run_reconstruct", "run_report", "points_csv", "write_laser_pixels"]
 
 
-def write_simulation(folder, ds, *, seed):
+def write_simulation(folder, ds, *, seed, image_size=(800, 600)):
     """Write a simulated dataset as the files the other commands read; returns the paths.
 
     Files: ``laser.csv`` and ``laser.npz`` (u, v, x, y, z, sigma_x/y/z, sigma_px),
     ``calibration.npz`` (CalibrationData fields), ``grid.csv`` and
     ``calib_laser.csv`` (the same in CSV), ``walls.csv`` (the rough floor plan of
     the room, for ``calibrate --walls``), ``truth.json`` (true parameters, points
-    and walls, settings).
+    and walls, settings). The approximate points' sds are floored at
+    :data:`~bayescal.scene.simulate.SIGMA_SCENE_FLOOR_MM`; ``laser.csv`` starts with
+    ``# image_size: WxH`` (``image_size``, px).
     """
     from dataclasses import asdict
 
@@ -37,19 +40,23 @@ def write_simulation(folder, ds, *, seed):
         write_laser_csv,
         write_laser_npz,
     )
+    from ..scene.simulate import SIGMA_SCENE_FLOOR_MM
 
     p = folder.path
+    sigma_scene = np.maximum(ds.sigma_scene, SIGMA_SCENE_FLOOR_MM)
     pose = "" if ds.laser.is_aligned else (
         f", laser cone tilted ({np.degrees(ds.laser.tilt_x):g}, {np.degrees(ds.laser.tilt_y):g})"
         f" deg, offset ({ds.laser.offset_x:g}, {ds.laser.offset_y:g}) mm")
-    note = (f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
+    note = (f"image_size: {int(image_size[0])}x{int(image_size[1])}\n"
+            f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
             f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}){pose}, "
             f"seed {seed}\n"
             "u, v: laser pixel (px); x, y, z: approximate point (mm, frame C); sigma_*: its sd "
-            "(mm, inf = no information); sigma_px: pixel noise (px)")
-    write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+            f"(mm, at least {SIGMA_SCENE_FLOOR_MM:g}; inf = no information); sigma_px: pixel "
+            "noise (px)")
+    write_laser_csv(p / "laser.csv", ds.pixels, ds.approx_points, sigma_scene=sigma_scene,
                     sigma_px=ds.sigma_px, header_comment=note)
-    write_laser_npz(p / "laser.npz", ds.pixels, ds.approx_points, sigma_scene=ds.sigma_scene,
+    write_laser_npz(p / "laser.npz", ds.pixels, ds.approx_points, sigma_scene=sigma_scene,
                     sigma_px=ds.sigma_px)
     cal = ds.calibration
     write_calibration_npz(p / "calibration.npz", cal)
@@ -83,22 +90,24 @@ def write_simulation(folder, ds, *, seed):
 def run_simulate(job, folder):
     """Simulate and write the inputs of ``calibrate`` (see :func:`write_simulation`)."""
     ds = job.dataset()
-    files = write_simulation(folder, ds, seed=job.seed)
+    files = write_simulation(folder, ds, seed=job.seed, image_size=job.image_size)
     if job.images:
-        files += write_images(folder, ds, seed=job.seed)
+        files += write_images(folder, ds, seed=job.seed, image_size=job.image_size)
     for f in files:
         print(f"wrote {job.out / f.name}")
 
 
-def write_images(folder, ds, *, seed):
-    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``."""
+def write_images(folder, ds, *, seed, image_size=(800, 600)):
+    """Render the simulated room: ``image.png``, ``image_off.png`` (16 bit), ``ring.csv``;
+    ``image_size`` (width, height) px."""
     import imageio.v3 as iio
 
     from ..io.data import _write_csv
     from ..scene.render import render_image
 
     img, truth = render_image(ds.params, ds.walls, n_lamps=2, ghost=0.3, bits=16,
-                              with_background=True, rng=seed, laser=ds.laser)
+                              with_background=True, rng=seed, laser=ds.laser,
+                              shape=(int(image_size[1]), int(image_size[0])))
     p = folder.path
     iio.imwrite(p / "image.png", img)
     iio.imwrite(p / "image_off.png", truth.background)
@@ -123,7 +132,8 @@ def run_extract(job, folder):
     if len(lp) == 0 or np.all(lp.flagged):
         return f"no laser ring found in {job.image_path}"
     p = folder.path
-    write_laser_pixels(p / "laser.csv", lp, job.image_path.name)
+    write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
+                       image_size=job.image.shape[1::-1])
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
     print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
@@ -131,19 +141,23 @@ def run_extract(job, folder):
           f"{job.out / 'overlay.png'}")
 
 
-def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note=""):
+def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_size=None):
     """Write extracted laser pixels as ``bayescal extract``'s CSV (u, v, cov_uu, cov_uv,
-    cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset."""
+    cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset. ``image_size``
+    ``(width, height)`` px is written first as ``# image_size: WxH``, which ``calibrate``
+    and ``reconstruct`` read."""
     from ..io.data import _write_csv
 
     k = slice(None) if rows is None else rows
     note = (f"bayescal extract {image_name}: u, v laser centre line (px); cov_*: "
             "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
-            "noise sd; flagged: 1 = likely distractor" + extra_note)
+            "noise sd; flagged: 1 = likely distractor, left out by calibrate" + extra_note)
+    if image_size is not None:
+        note = f"image_size: {int(image_size[0])}x{int(image_size[1])}\n" + note
     px, cov = lp.pixels[k], lp.covariance[k]
     _write_csv(path, {
         "u": px[:, 0], "v": px[:, 1], "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1],
-        "cov_vv": cov[:, 1, 1], "snr": lp.snr[k], "flagged": lp.flagged[k].astype(float)},
+        "cov_vv": cov[:, 1, 1], "snr": lp.snr[k], "flagged": lp.flagged[k].astype(int)},
         header_comment=note)
     return path
 
@@ -355,7 +369,7 @@ def run_calibrate(job, folder):
                               outlier_prob=getattr(result, "outlier_prob", None)))
     folder.add(_params_csv(out, job, result))
     acc, model = None, {"laser_model": choice.record()}
-    if job.data is not None and (recon is not None or result.points is not None):
+    if job.data is None or recon is not None or result.points is not None:
         info = run_record(job, **model)
         files, acc = write_report(out, result, info, data=job.data, recon=recon,
                                   truth=job.truth, prior=_prior_of(job), title=job.title,
@@ -364,7 +378,7 @@ def run_calibrate(job, folder):
     folder.add(write_json(out / RUN_FILE, run_record(job, accuracy=acc, **model)))
     from ..checks.datafile import located_summary
 
-    print(located_summary(result, job.data))
+    print(cli_words(located_summary(result, job.data)))
     if choice.text():
         print(choice.text())
     if acc:
@@ -449,7 +463,7 @@ def run_report(job, folder):
     pts = job.run / "points.csv"
     if pts.is_file():
         c = read_table(pts, required=("x", "y", "z", "sd_x", "sd_y", "sd_z", "cov_xy", "cov_xz",
-                                      "cov_yz")).columns
+                                      "cov_yz"), optional=("outlier_prob",)).columns
         cov = np.empty((len(c["x"]), 3, 3))
         for i, a in enumerate("xyz"):
             cov[:, i, i] = c[f"sd_{a}"] ** 2

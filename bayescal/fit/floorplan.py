@@ -163,7 +163,7 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
         cost, ne = _normal_equations(lik, prior, g, t, sig)
         lam = max(lam / 3.0, 1e-12)
         if rel < ftol or small:
-            converged, message = True, "converged (relative cost decrease or step below tolerance)"
+            converged, message = True, "relative cost decrease or step below tolerance"
             break
     S, _ = _schur(ne)
     cov = np.linalg.inv(S)

@@ -162,7 +162,7 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
         cost, A, B, C, gt, gq, R = _normal_equations(lik, prior, theta, q, sig, w_scene, u)
         lam = max(lam / 3.0, 1e-12)
         if rel < ftol or small_step:
-            converged, message = True, "converged (relative cost decrease or step below tolerance)"
+            converged, message = True, "relative cost decrease or step below tolerance"
             break
     # Laplace covariance at the solution (undamped Schur complement)
     Cinv = np.linalg.inv(C)

@@ -17,8 +17,16 @@ File formats (``docs/cli.md`` has examples):
       optional pixel noise standard deviation, px: one value for the whole
       file (empty cells allowed, different values rejected).
 
+  ``cov_uu, cov_uv, cov_vv``
+      optional per-point pixel covariance, px^2;
+  ``snr, flagged``
+      from ``bayescal extract``: rows with ``flagged = 1`` are left out
+      (:attr:`LaserData.flagged_lines`).
+
   Lines starting with ``#`` and blank lines are skipped; line numbers in
-  messages count every line of the file, the header being line 1.
+  messages count every line of the file, the header being line 1. A comment
+  line ``# image_size: WIDTHxHEIGHT`` before the header gives the image size
+  in px (``bayescal extract`` writes it; :attr:`LaserData.image_size`).
 * **NPZ** with the same names as 1-D arrays (``u``, ``v``, ``x``...), or the
   stacked arrays ``pixels`` (N, 2), ``approx_points`` (N, 3),
   ``sigma_scene`` (N, 3) and a scalar ``sigma_px``.
@@ -44,13 +52,23 @@ import numpy as np
 
 from ..errors import InputError
 from .jsonfile import read_json, to_jsonable, write_json
-from .tables import LASER_COLUMNS, PIXEL_COV_COLUMNS, SIGMA_COLUMNS, Table, read_table
+from .tables import (
+    FLAG_COLUMNS,
+    LASER_COLUMNS,
+    PIXEL_COV_COLUMNS,
+    SIGMA_COLUMNS,
+    Table,
+    drop_flagged,
+    parse_image_size,
+    read_table,
+)
 
 __all__ = ["InputError", "to_jsonable", "Table", "LaserData", "read_table", "load_laser_data",
            "load_pixels", "pixel_covariance", "load_calibration_data", "check_pixels_in_image",
            "check_projection_domain", "write_laser_csv", "write_laser_npz",
            "write_calibration_npz", "write_json", "read_json", "parse_image_size",
-           "duplicate_rows", "LASER_COLUMNS", "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS"]
+           "duplicate_rows", "LASER_COLUMNS", "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS",
+           "FLAG_COLUMNS"]
 
 @dataclass
 class LaserData:
@@ -85,6 +103,16 @@ class LaserData:
     def n_points(self):
         """Number of laser points N."""
         return len(self.pixels)
+
+    @property
+    def flagged_lines(self):
+        """Lines (NPZ: indices) of the rows left out as ``flagged = 1``; empty if none."""
+        return self.pixel_table.dropped
+
+    @property
+    def image_size(self):
+        """``(width, height)`` px from the file's ``# image_size: WxH`` line, or None."""
+        return self.pixel_table.meta.get("image_size")
 
     @property
     def paths(self):
@@ -132,7 +160,8 @@ def load_pixels(path):
     table : Table
     """
     t = read_table(path, required=("u", "v"), optional=("x", "y", "z") + SIGMA_COLUMNS
-                   + ("sigma_px",) + PIXEL_COV_COLUMNS + ("snr", "flagged"))
+                   + ("sigma_px",) + PIXEL_COV_COLUMNS + FLAG_COLUMNS)
+    (t,) = drop_flagged(t)
     return np.column_stack([t.columns["u"], t.columns["v"]]), t
 
 
@@ -160,16 +189,20 @@ def load_laser_data(path, points_path=None, *, need_points=True):
     opt = SIGMA_COLUMNS + ("sigma_px",)
     if points_path is None:
         req = ("u", "v") + (("x", "y", "z") if need_points else ())
-        pt = read_table(path, required=req, optional=("x", "y", "z") + opt + PIXEL_COV_COLUMNS)
+        pt = read_table(path, required=req,
+                        optional=("x", "y", "z") + opt + PIXEL_COV_COLUMNS + FLAG_COLUMNS)
+        (pt,) = drop_flagged(pt)
         qt = pt if all(c in pt.columns for c in "xyz") else None
         tables = [pt]
     else:
-        pt = read_table(path, required=("u", "v"), optional=("sigma_px",) + PIXEL_COV_COLUMNS)
+        pt = read_table(path, required=("u", "v"),
+                        optional=("sigma_px",) + PIXEL_COV_COLUMNS + FLAG_COLUMNS)
         qt = read_table(points_path, required=("x", "y", "z"), optional=opt)
         if len(pt) != len(qt):
             raise InputError(f"{pt.path} has {len(pt)} points (u, v) but {qt.path} has "
                              f"{len(qt)} (x, y, z); expected the same number, one row per "
                              "laser point in the same order", path=str(qt.path))
+        pt, qt = drop_flagged(pt, qt)
         tables = [pt, qt]
     pixels = np.column_stack([pt.columns["u"], pt.columns["v"]])
     approx = sig = None
@@ -227,18 +260,6 @@ def duplicate_rows(data):
     for g in np.flatnonzero(counts > 1):
         groups.append([int(lines[i]) for i in np.flatnonzero(inverse == g)])
     return sorted(groups)
-
-
-def parse_image_size(text):
-    """Parse ``"WIDTHxHEIGHT"`` (px) into ``(width, height)`` ints."""
-    try:
-        w, h = (int(s) for s in str(text).lower().split("x"))
-    except ValueError:
-        raise ValueError(f"image size must look like 800x600 (width x height in px), "
-                         f"got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise ValueError(f"image size must be positive, got {text!r}")
-    return w, h
 
 
 def check_pixels_in_image(pixels, table, *, image_size, margin):
@@ -301,7 +322,12 @@ def check_projection_domain(points, table, params):
 
 
 def _column_text(a):
-    return ["inf" if np.isposinf(v) else repr(float(v)) for v in a]
+    """Cells of one column: integers (and booleans, as 0/1) as integers, floats with
+    ``repr`` (round-trip exact), ``inf`` as ``inf``."""
+    a = np.asarray(a)
+    if a.dtype.kind in "biu":
+        return [str(int(v)) for v in a]
+    return ["inf" if np.isposinf(v) else repr(float(v)) for v in a.astype(float)]
 
 
 def write_laser_csv(path, pixels, approx_points=None, *, sigma_scene=None, sigma_px=None,
@@ -345,7 +371,7 @@ def _write_csv(path, cols, header_comment=None):
                 f.write(f"# {line}\n")
         w = csv.writer(f, lineterminator="\n")
         w.writerow(cols)
-        texts = [_column_text(np.asarray(a, dtype=float)) for a in cols.values()]
+        texts = [_column_text(a) for a in cols.values()]
         w.writerows(zip(*texts, strict=True))
 
 

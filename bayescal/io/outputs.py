@@ -121,6 +121,13 @@ def check_out(out, *, force, inputs=(), option="--out"):
     return out
 
 
+def _umask():
+    """The process's umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 class _SubFolder:
     """A sub-folder of an :class:`OutputFolder`; its files go in the parent's manifest."""
 
@@ -190,6 +197,9 @@ class OutputFolder:
                 self._created.append(d)
             self.path = pathlib.Path(tempfile.mkdtemp(prefix=f".{self.target.name}.",
                                                       suffix=".bayescal-tmp", dir=parent))
+            # mkdtemp makes the folder 0700; the output folder is renamed from it, so give
+            # it the mode a plain mkdir would (0777 less the umask, e.g. 0755)
+            os.chmod(self.path, 0o777 & ~_umask())
         except OSError as exc:
             self._remove_created()
             raise UsageError(f"cannot write into {parent}: {exc.strerror}") from None

@@ -12,6 +12,7 @@ import csv
 import io as _io
 import math
 import pathlib
+import re
 import sys
 from dataclasses import dataclass, field
 
@@ -19,12 +20,21 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Table", "read_table", "LASER_COLUMNS", "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS"]
+__all__ = ["Table", "read_table", "drop_flagged", "parse_image_size", "LASER_COLUMNS",
+           "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY"]
 
 LASER_COLUMNS = ("u", "v", "x", "y", "z")
 SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
 #: per-point pixel covariances, px^2 (``bayescal extract`` writes them)
 PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
+#: the comment line that carries the image size: ``# image_size: 1280x1024`` (px)
+IMAGE_SIZE_KEY = "image_size"
+_META_RE = re.compile(r"^#\s*image_size\s*[:=]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
+#: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
+#: far below any approximate point's error; smaller values are numerical accidents
+MIN_SD = 1e-9
+#: what ``bayescal extract`` writes beside the pixels: peak over noise, distractor flag
+FLAG_COLUMNS = ("snr", "flagged")
 _KNOWN = LASER_COLUMNS + SIGMA_COLUMNS + ("sigma_px", "plane") + PIXEL_COV_COLUMNS
 _STACKED = {"pixels": ("u", "v"), "approx_points": ("x", "y", "z"), "points": ("x", "y", "z"),
             "sigma_scene": SIGMA_COLUMNS}
@@ -44,6 +54,12 @@ class Table:
     kind : {"csv", "npz"}
     scalars : dict of str to float
         Scalar NPZ entries (``sigma_px``).
+    meta : dict
+        What the file says about itself in ``# key: value`` comment lines before the
+        header (CSV): ``image_size`` as ``(width, height)`` px (:data:`IMAGE_SIZE_KEY`).
+    dropped : tuple of int
+        Lines (or NPZ indices) left out of the table: the rows ``bayescal extract``
+        flagged (``flagged = 1``), see :func:`drop_flagged`.
     """
 
     path: pathlib.Path
@@ -51,6 +67,8 @@ class Table:
     lines: np.ndarray
     kind: str
     scalars: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+    dropped: tuple = ()
 
     def __len__(self):
         return len(self.lines)
@@ -90,7 +108,30 @@ def _parse_cell(text, *, where, sigma):
     if sigma and value <= 0:
         raise InputError(f"{where}: {s!r} is not a valid standard deviation; expected a "
                          "positive number in mm (or empty/inf for 'no information')")
+    if sigma and value < MIN_SD:
+        raise InputError(f"{where}: {s!r} is not a measurement's standard deviation (below "
+                         f"{MIN_SD:g}; such a value comes from a relative error times a "
+                         "coordinate of ~0, and makes the fit's matrices singular); expected a "
+                         "realistic sd (or empty/inf for 'no information')")
     return value
+
+
+def _meta(path, text):
+    """``# key: value`` lines before the header: the image size (``# image_size: WxH``)."""
+    meta = {}
+    for lineno, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if s and not s.startswith("#"):
+            break
+        m = _META_RE.match(s)
+        if m is None:
+            continue
+        w, h = int(m.group(1)), int(m.group(2))
+        if w <= 0 or h <= 0:
+            raise InputError(f"{path}, line {lineno}: image size {w}x{h}; expected a "
+                             "positive width and height in px", path=str(path), line=lineno)
+        meta["image_size"] = (w, h)
+    return meta
 
 
 def _read_csv(path, required, optional):
@@ -142,7 +183,7 @@ def _read_csv(path, required, optional):
             except InputError as exc:
                 exc.path, exc.line, exc.column = str(path), lineno, c
                 raise
-    return Table(path, cols, lines, "csv")
+    return Table(path, cols, lines, "csv", meta=_meta(path, text))
 
 
 def _read_npz(path, required, optional):
@@ -196,7 +237,7 @@ def _read_npz(path, required, optional):
                   {k: v for k, v in scalars.items() if k in optional or k in required})
     for c, a in cols.items():
         sigma = c.startswith("sigma_")
-        bad = np.isnan(a) | (np.isinf(a) if not sigma else (a <= 0))
+        bad = np.isnan(a) | (np.isinf(a) if not sigma else (a < MIN_SD))
         if np.any(bad):
             k = int(np.argmax(bad))
             what = ("a positive number in mm (or inf for 'no information')" if sigma
@@ -233,3 +274,59 @@ def read_table(path, *, required, optional=()):
     if path.suffix.lower() == ".npz":
         return _read_npz(path, tuple(required), tuple(optional))
     return _read_csv(path, tuple(required), tuple(optional))
+
+
+def parse_image_size(text):
+    """Parse ``"WIDTHxHEIGHT"`` (px) into ``(width, height)`` ints."""
+    try:
+        w, h = (int(s) for s in str(text).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"image size must look like 800x600 (width x height in px), "
+                         f"got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise ValueError(f"image size must be positive, got {text!r}")
+    return w, h
+
+
+def drop_flagged(table, *others):
+    """Leave out the rows ``bayescal extract`` flagged as likely distractors.
+
+    Parameters
+    ----------
+    table : Table
+        The pixel table; its ``flagged`` column (0 or 1), if any, decides.
+    *others : Table
+        Tables with the same rows (a separate points file), cut the same way.
+
+    Returns
+    -------
+    tuple of Table
+        ``table`` and ``others`` without the flagged rows; the pixel table's
+        :attr:`Table.dropped` lists their lines. Unchanged without a ``flagged`` column.
+
+    Raises
+    ------
+    InputError
+        A ``flagged`` cell that is not 0 or 1, or every row flagged.
+    """
+    flag = table.columns.get("flagged")
+    if flag is None:
+        return (table, *others)
+    bad = (flag != 0) & (flag != 1)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise table.error(k, "flagged", f"{_fmt(float(flag[k]))}; expected 0 (a laser point) "
+                          "or 1 (flagged as a likely distractor by bayescal extract)")
+    keep = flag == 0
+    if not keep.any():
+        raise InputError(f"{table.path}: every one of its {len(flag)} rows is flagged "
+                         "(flagged = 1, likely distractors); no laser point left to use. "
+                         "Re-extract (bayescal extract --background, --center, --channel)",
+                         path=str(table.path), column="flagged")
+    dropped = tuple(int(v) for v in table.lines[~keep])
+    out = []
+    for t in (table, *others):
+        cols = {c: a[keep] for c, a in t.columns.items()}
+        out.append(Table(t.path, cols, t.lines[keep], t.kind, dict(t.scalars), dict(t.meta),
+                         dropped if t is table else ()))
+    return tuple(out)

@@ -36,6 +36,7 @@ from scipy.special import logsumexp
 
 from .._validation import resolve_rng
 from ..sensor.parameters import (
+    CAMERA_PARAM_NAMES,
     PARAM_NAMES,
     SensorParams,
     camera_moments,
@@ -46,8 +47,6 @@ from ..sensor.parameters import (
 from ..sensor.pose import POSE_NAMES
 
 __all__ = ["default_prior", "default_pose_prior", "Prior", "POSE_TOLERANCES", "as_prior"]
-#: the paper parameters whose own priors a camera prior replaces
-_CAMERA_PAPER = ("xi", "alpha_u", "alpha_v", "u0", "v0")
 
 #: default tolerances (one standard deviation) around the design values
 DEFAULT_TOLERANCES = {
@@ -228,11 +227,11 @@ class Prior:
         pose = default_pose_prior()
         if isinstance(prior, Prior):
             camera = prior.camera if camera is None else camera
-            skip = _CAMERA_PAPER if prior.camera is not None else ()
+            skip = CAMERA_PARAM_NAMES if prior.camera is not None else ()
             prior = {**{k: v for k, v in prior.dists.items() if k not in skip},
                      **prior.pose_dists}
         if camera is not None:
-            clash = sorted(set(prior or {}) & set(_CAMERA_PAPER))
+            clash = sorted(set(prior or {}) & set(CAMERA_PARAM_NAMES))
             if clash:
                 raise ValueError(f"prior gives {', '.join(clash)} and camera is given: the "
                                  "camera's prior replaces those of xi, alpha_u, alpha_v, u0, "

@@ -205,10 +205,9 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
 
     out = pathlib.Path(out)
     size = tuple(info.get("image_size") or (800, 600))
-    figs = {"image": ("Laser pixels in the image",
-                      savefig(plot_image(data.pixels, params=result.params, image_size=size),
-                              out / "image.png"))}
-    fig = _residual_figure(result, info, data.pixels)
+    figs = {} if data is None else {"image": ("Laser pixels in the image", savefig(
+        plot_image(data.pixels, params=result.params, image_size=size), out / "image.png"))}
+    fig = _residual_figure(result, info, None if data is None else data.pixels)
     if fig is not None:
         what = ("Standardized residuals of both stages"
                 if getattr(result, "method", None) == "sequential"
@@ -250,16 +249,19 @@ def _intro(doc, result, info):
     doc.paragraph(f"Method: **{info.get('method', getattr(result, 'method', 'bayes'))}**; "
                   f"laser model: **{getattr(result, 'model', 'aligned')}**; status: {status}.")
     if not _is_posterior(result) and result.message:
-        doc.paragraph(f"Solver message: {result.message}.")
+        doc.paragraph(f"Solver message: {str(result.message).rstrip('.')}.")
     ins = [v for v in (info.get("inputs") or {}).values() if v]
     if ins:
         doc.paragraph("Inputs: " + ", ".join(f"`{v}`" for v in ins) + ".")
     if info.get("sigma_px") is not None:
-        doc.paragraph(f"Pixel noise used: {_num(info['sigma_px'])} px "
-                      f"({info.get('sigma_px_how', 'given')}).")
+        how = info.get("sigma_px_how", "given")
+        doc.paragraph(f"Pixel covariance scale used: {_num(info['sigma_px'])} ({how})."
+                      if "covariances" in how else
+                      f"Pixel noise used: {_num(info['sigma_px'])} px ({how}).")
     if not _is_posterior(result) and result.sigma_px_estimated is not None:
-        doc.paragraph(f"Pixel noise estimated from the residuals: "
-                      f"{_num(result.sigma_px_estimated)} px.")
+        what = result.noise_label()[len("estimated "):]
+        doc.paragraph(f"{what.capitalize()} estimated from the residuals: "
+                      f"{result.noise_text()}.")
     if info.get("sigma_scene"):
         doc.paragraph(f"Scene uncertainty: {info['sigma_scene']}.")
 
@@ -338,8 +340,9 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     info : dict
         The run record (``method``, ``inputs``, ``sigma_px``, ``sigma_scene``,
         ``image_size``), see :func:`bayescal.io.runinfo.run_record`.
-    data : LaserData
-        The laser data the result was computed from.
+    data : LaserData or None
+        The laser data the result was computed from (None: a sequential run without
+        laser data, whose report has the parameters and the residuals of both stages).
     recon : (ndarray (N, 3), ndarray (N, 3, 3)), optional
         Reconstructed points (mm) and covariances (mm^2) for the ellipse plot
         and the accuracy (default: the result's points, if any).
@@ -364,14 +367,16 @@ def write_report(out, result, info, *, data, recon=None, truth=None, prior=None,
     from ..checks.model import model_check
 
     check = None if getattr(result, "method", None) == "sequential" or result.points is None \
-        else model_check(result, pixels=data.pixels, approx_points=data.approx_points, info=info)
+        or data is None else model_check(result, pixels=data.pixels,
+                                         approx_points=data.approx_points, info=info)
     figs = report_figures(out, result, info, data=data, recon=recon, truth=truth, check=check)
     figs.update({f"extra{k}": (cap, pathlib.Path(p)) for k, (cap, p) in enumerate(figures)})
     acc = accuracy(recon[0] if recon is not None else result.points, truth)
     doc = build_document(result, info, rows=parameter_rows(result, prior=prior), figs=figs,
                          acc=acc, truth=truth, warnings=_warnings(result, info, data),
                          title=title, check=check,
-                         flagged=flagged_text(data, getattr(result, "outlier_prob", None)),
+                         flagged=None if data is None else flagged_text(
+                             data, getattr(result, "outlier_prob", None)),
                          summary=located_summary(result, data))
     md, ht = write_document(doc, out, "report")
     files = {k: p for k, (_, p) in figs.items()}

@@ -324,7 +324,7 @@ class CalibrationResult:
         lines.append("residual RMS: " + ", ".join(f"{k} = {v:.4g}"
                                                     for k, v in self.residual_rms.items()))
         if self.sigma_px_estimated is not None:
-            lines.append(f"estimated pixel noise: {self.sigma_px_estimated:.4g} px "
+            lines.append(f"{self.noise_label()}: {self.noise_text()} "
                          f"({self.n_residuals} residuals, {self.n_unknowns} unknowns)")
         if self.outlier_prob is not None:
             flagged = np.flatnonzero(self.outlier_prob > 0.5)
@@ -334,6 +334,18 @@ class CalibrationResult:
                             + (" ..." if flagged.size > 20 else "") if flagged.size else ""))
         lines.append(str(self.identifiability))
         return "\n".join(lines)
+
+    def noise_label(self):
+        """What :attr:`sigma_px_estimated` is: a pixel noise in px, or, when the fit had
+        per-point pixel covariances (``extras["pixel_cov"]``), a scale on them."""
+        if self.extras.get("pixel_cov") is not None:
+            return "estimated pixel covariance scale"
+        return "estimated pixel noise"
+
+    def noise_text(self):
+        """:attr:`sigma_px_estimated` with its unit (none for a covariance scale)."""
+        unit = "" if self.extras.get("pixel_cov") is not None else " px"
+        return f"{self.sigma_px_estimated:.4g}{unit}"
 
     def _pose_lines(self, sd):
         """What the data determine of the laser pose: its sd against its prior's

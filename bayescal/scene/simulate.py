@@ -24,7 +24,15 @@ from ..sensor.pose import LaserPose, cone_point_pose_theta
 from .floorplan import FloorPlan
 
 __all__ = ["Dataset", "CalibrationData", "simulate_room", "room_walls", "rotation_matrix",
-           "APPROX_MODELS"]
+           "APPROX_MODELS", "SIGMA_SCENE_FLOOR_MM"]
+
+#: smallest sd (mm) written for an approximate coordinate by ``bayescal simulate``. The
+#: paper's Fig. 9 protocol makes each coordinate's sd proportional to the coordinate, so a
+#: point on an axis gets an sd of ~0 (3.3e-15 mm was written for x ~ 1e-13 mm), which no
+#: measurement has and which makes each point's whitened design singular. 1 mm is below
+#: every other sd in these rooms (5 % of a 1000 mm range is 50 mm; at 5 % the floor
+#: touches only coordinates within 20 mm of zero) and is the floor the studies use.
+SIGMA_SCENE_FLOOR_MM = 1.0
 
 APPROX_MODELS = ("fig9", "wall", "gaussian")
 

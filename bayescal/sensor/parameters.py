@@ -26,6 +26,7 @@ __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
     "CAMERA_NAMES",
+    "CAMERA_PARAM_NAMES",
     "camera_moments",
     "SensorParams",
     "as_param_array",
@@ -38,6 +39,8 @@ PARAM_NAMES = ("xi", "phi", "alpha_u", "alpha_v", "u0", "v0", "h", "beta")
 IDENTIFIABLE_NAMES = ("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta")
 #: the camera coordinates a camera calibration gives: the first five identifiable ones
 CAMERA_NAMES = IDENTIFIABLE_NAMES[:5]
+#: the paper parameters whose priors a camera calibration replaces (phi stays its own)
+CAMERA_PARAM_NAMES = ("xi", "alpha_u", "alpha_v", "u0", "v0")
 
 
 @dataclass(frozen=True)

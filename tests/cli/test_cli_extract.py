@@ -11,6 +11,12 @@ from tests.cli.test_cli import run
 iio = pytest.importorskip("imageio.v3")
 
 
+def _laser(path):
+    """The numbers of extract's laser.csv (its '#' lines and header left out)."""
+    with open(path) as f:
+        return np.loadtxt([line for line in f if not line.startswith("#")][1:], delimiter=",")
+
+
 @pytest.fixture(scope="module")
 def images(tmp_path_factory):
     root = tmp_path_factory.mktemp("extract")
@@ -39,7 +45,7 @@ def test_extract_writes_csv_and_overlay(images):
     r = run("extract", "on.tif", "--background", "off.png", "--along-sd", "1", "--out", "ex1",
             cwd=root)
     assert r.returncode == 0, r.stderr
-    b = np.loadtxt(root / "ex1" / "laser.csv", delimiter=",", skiprows=2)   # comment, header
+    b = _laser(root / "ex1" / "laser.csv")
     cov = np.stack([np.stack([b[:, 2], b[:, 3]], -1), np.stack([b[:, 3], b[:, 4]], -1)], -2)
     big = np.linalg.eigvalsh(cov)[:, 1]
     np.testing.assert_allclose(np.sqrt(big[b[:, 6] == 0]), 1.0, rtol=0.05)
@@ -71,7 +77,7 @@ def test_simulate_images_then_extract(tmp_path):
             cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     ring = np.loadtxt(tmp_path / "sim" / "ring.csv", delimiter=",", skiprows=3)
-    got = np.loadtxt(tmp_path / "ex" / "laser.csv", delimiter=",", skiprows=2)
+    got = _laser(tmp_path / "ex" / "laser.csv")
     good = got[got[:, 6] == 0, :2]
     d = np.min(np.linalg.norm(good[:, None] - ring[None, :, :2], axis=-1), axis=1)
     assert np.median(d) < 0.25
@@ -81,7 +87,7 @@ def _with_points(root, name, *, bad_row=None):
     """laser.csv of `extract` plus x, y, z (true points with 2 % error) -> NAME."""
     truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), rng=2,
                             with_background=True, n_lamps=2, ghost=0.3, bits=16)[1]
-    a = np.loadtxt(root / "ex" / "laser.csv", delimiter=",", skiprows=2)
+    a = _laser(root / "ex" / "laser.csv")
     a = a[a[:, 6] == 0]
     k = np.argmin(np.sum((a[:, None, :2] - truth.pixels[None]) ** 2, -1), 1)
     pts = truth.points[k]

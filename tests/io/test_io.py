@@ -19,6 +19,7 @@ from bayescal.io.data import (
     write_laser_csv,
     write_laser_npz,
 )
+from bayescal.scene.simulate import SIGMA_SCENE_FLOOR_MM
 
 GOOD = "u,v,x,y,z\n450.0,300.0,1000.0,0.0,377.0\n400.0,250.0,0.0,1000.0,377.0\n"
 
@@ -105,24 +106,30 @@ def test_two_files_must_have_the_same_number_of_rows(tmp_path):
     assert [p.name for p in d.paths] == ["pix.csv", "pts.csv"]
 
 
+def _floored(ds):
+    """The sds as ``bayescal simulate`` writes them: a point on an axis has an sd of ~1e-14
+    mm in ``simulate_room``, which the readers refuse (below 1e-9)."""
+    return np.maximum(ds.sigma_scene, SIGMA_SCENE_FLOOR_MM)
+
+
 def test_csv_round_trip_is_exact(tmp_path, ds):
     p = write_laser_csv(tmp_path / "l.csv", ds.pixels, ds.approx_points,
-                        sigma_scene=ds.sigma_scene, sigma_px=ds.sigma_px,
+                        sigma_scene=_floored(ds), sigma_px=ds.sigma_px,
                         header_comment="two\nlines")
     d = load_laser_data(p)
     np.testing.assert_array_equal(d.pixels, ds.pixels)
     np.testing.assert_array_equal(d.approx_points, ds.approx_points)
-    np.testing.assert_array_equal(d.sigma_scene, ds.sigma_scene)   # z is inf (fig9)
+    np.testing.assert_array_equal(d.sigma_scene, _floored(ds))   # z is inf (fig9)
     assert d.sigma_px == ds.sigma_px
     assert d.pixel_table.lines[0] == 4        # two comment lines, then the header
 
 
 def test_npz_stacked_and_per_column_arrays(tmp_path, ds):
     p = write_laser_npz(tmp_path / "l.npz", ds.pixels, ds.approx_points,
-                        sigma_scene=ds.sigma_scene, sigma_px=ds.sigma_px)
+                        sigma_scene=_floored(ds), sigma_px=ds.sigma_px)
     d = load_laser_data(p)
     np.testing.assert_array_equal(d.pixels, ds.pixels)
-    np.testing.assert_array_equal(d.sigma_scene, ds.sigma_scene)
+    np.testing.assert_array_equal(d.sigma_scene, _floored(ds))
     assert d.sigma_px == ds.sigma_px
     q = tmp_path / "cols.npz"
     np.savez(q, u=ds.pixels[:, 0], v=ds.pixels[:, 1], x=ds.points[:, 0], y=ds.points[:, 1],

@@ -1,0 +1,182 @@
+"""Design values of a calibration: ``--nominal`` (whole or in part), the image size, and the
+focal scale the data imply.
+
+The paper's sensor (:meth:`~bayescal.SensorParams.paper`) has an 800x600 image. For any
+other image size the design values that ``--nominal`` does not give are derived:
+
+* ``u0, v0``: the image centre, with a prior sd of ``max(10, min(W, H) / 40)`` px (10 px
+  for the paper's sensor, 26 px for 1280x1024: a lens is centred to a few percent of the
+  sensor, not to 10 px);
+* ``alpha_u, alpha_v``: the focal scale that puts the laser points where the pixels are,
+  from the nominal ``xi, h, beta``: for each point with approximate coordinates, or on the
+  rough floor plan's walls, the unit-scale projection radius ``rho / (xi r - z)`` (eq. (1)),
+  and the scale is the median ratio of the pixels' distance from the centre to it (the
+  paper's signs: ``alpha_u > 0 > alpha_v``). Without points or plan, the paper's 55 px
+  scaled by ``min(W, H) / 600``;
+* ``xi, phi, h, beta``: the paper's.
+
+Imports only :mod:`bayescal.errors` at module level (``--help`` stays instant).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import UsageError
+
+__all__ = ["PAPER_IMAGE_SIZE", "read_nominal", "image_size_setting", "design_values",
+           "centre_sd", "note_flagged", "note_design"]
+
+#: the paper's image, width x height in px: its design values are the paper's sensor
+PAPER_IMAGE_SIZE = (800, 600)
+
+
+def read_nominal(path):
+    """The design values ``--nominal`` gives: ``{name: value}``, any subset of the eight.
+
+    Raises
+    ------
+    UsageError
+        Not a JSON object, an unknown name, or a value that is not a finite number.
+    """
+    from ..io.data import read_json
+    from ..sensor.parameters import PARAM_NAMES
+
+    if path is None:
+        return {}
+    raw = read_json(path)
+    raw = raw.get("params", raw) if isinstance(raw, dict) else raw
+    if not isinstance(raw, dict):
+        raise UsageError(f"--nominal {path}: expected a JSON object of design values, e.g. "
+                         '{"u0": 640, "v0": 512}')
+    unknown = [n for n in raw if n not in PARAM_NAMES]
+    if unknown:
+        raise UsageError(f"--nominal {path}: unknown parameter(s) {', '.join(unknown)}; "
+                         f"expected some of {', '.join(PARAM_NAMES)} (the rest are derived)")
+    out = {}
+    for name, value in raw.items():
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if not np.isfinite(v) or isinstance(value, bool):
+            raise UsageError(f"--nominal {path}: {name} = {value!r}; expected a finite number")
+        out[name] = v
+    return out
+
+
+def image_size_setting(option, data):
+    """The image size: ``--image-size``, else the data file's ``# image_size:`` line, else
+    the paper's 800x600. Returns ``((width, height), how)``."""
+    if option is not None:
+        return tuple(int(v) for v in option), "--image-size"
+    size = None if data is None else data.image_size
+    if size is not None:
+        return tuple(size), f"{data.pixel_table.path} (image_size line)"
+    return PAPER_IMAGE_SIZE, "default (the paper's sensor)"
+
+
+def centre_sd(image_size):
+    """Prior sd of the principal point (px) when it is the image centre, not a design value."""
+    return max(10.0, min(image_size) / 40.0)
+
+
+def _unit_radius(points, xi):
+    """``rho / (xi r - z)``: the pixel radius of eq. (1) at unit focal scale."""
+    p = np.asarray(points, float)
+    r = np.linalg.norm(p, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.hypot(p[..., 0], p[..., 1]) / (xi * r - p[..., 2])
+
+
+def _plan_points(plan, base):
+    """Points of the nominal cone on the plan's walls at 720 azimuths, (M, 3) mm."""
+    from ..scene.floorplan import wall_range
+    from ..sensor.laser import cone_point
+
+    t = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    rho = wall_range(t[:, None], plan.distances[None, :], plan.angles[None, :])[0]
+    rho = np.nanmin(np.where(rho > 0, rho, np.nan), axis=1)
+    ok = np.isfinite(rho)
+    xy = rho[ok, None] * np.stack([np.cos(t[ok]), np.sin(t[ok])], axis=-1)
+    return cone_point(base, xy)
+
+
+def _focal_scale(data, plan, base, image_size):
+    """The focal scale (px) the data imply at the nominal ``xi, h, beta`` and centre; and
+    how it was found."""
+    pixels = None if data is None else data.pixels
+    d = None if pixels is None else np.hypot(pixels[:, 0] - base.u0, pixels[:, 1] - base.v0)
+    if d is not None and data.approx_points is not None:
+        m = _unit_radius(data.approx_points, base.xi)
+        ok = np.isfinite(m) & (m > 0) & (d > 0)
+        if ok.sum() >= 3:
+            return float(np.median(d[ok] / m[ok])), "approximate points"
+    if d is not None and plan is not None:
+        m = _unit_radius(_plan_points(plan, base), base.xi)
+        m = m[np.isfinite(m) & (m > 0)]
+        if m.size:
+            return float(np.median(d) / np.median(m)), "floor plan"
+    return 55.0 * min(image_size) / min(PAPER_IMAGE_SIZE), "image size"
+
+
+def design_values(given, *, image_size, data=None, plan=None):
+    """The nominal sensor: ``given`` design values, the rest derived from the image size.
+
+    Parameters
+    ----------
+    given : dict
+        ``{name: value}`` from ``--nominal`` (any subset of the eight).
+    image_size : (int, int)
+        Width, height, px.
+    data : LaserData, optional
+        Pixels and approximate points (for the focal scale).
+    plan : FloorPlan, optional
+        The rough floor plan (for the focal scale without approximate points).
+
+    Returns
+    -------
+    nominal : SensorParams
+    derived : dict
+        ``{name: how}`` of the values not given (empty for the paper's image size, whose
+        defaults are the paper's sensor).
+    """
+    from ..sensor.parameters import SensorParams
+
+    base = SensorParams.paper().as_dict()
+    derived = {}
+    if tuple(image_size) != PAPER_IMAGE_SIZE:
+        w, h = image_size
+        for name, value in (("u0", w / 2.0), ("v0", h / 2.0)):
+            if name not in given:
+                base[name], derived[name] = value, "image centre"
+        if "alpha_u" not in given or "alpha_v" not in given:
+            probe = SensorParams(**{**base, **given})
+            scale, how = _focal_scale(data, plan, probe, image_size)
+            scale /= probe.xi + probe.phi          # gamma = alpha (xi + phi)
+            for name, sign in (("alpha_u", 1.0), ("alpha_v", -1.0)):
+                if name not in given:
+                    base[name], derived[name] = sign * scale, f"focal scale from the {how}"
+    base.update(given)
+    try:
+        return SensorParams(**base), derived
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"--nominal: {exc}") from None
+
+
+def note_flagged(table, n_kept, what):
+    """Say which rows ``bayescal extract`` flagged and the job leaves out."""
+    lines = table.dropped
+    if lines:
+        unit = "lines" if table.kind == "csv" else "rows"
+        shown = ", ".join(map(str, lines[:20])) + (" ..." if len(lines) > 20 else "")
+        print(f"{table.path}: {len(lines)} of {len(lines) + n_kept} points flagged by "
+              f"extract (flagged = 1) left out of the {what}: {unit} {shown}")
+
+
+def note_design(size, derived, nominal):
+    """Say which design values came from the image size or the data, not ``--nominal``."""
+    if derived:
+        vals = ", ".join(f"{n} = {getattr(nominal, n):.6g} ({how})" for n, how in derived.items())
+        print(f"image {size[0][0]}x{size[0][1]} ({size[1]}): design values {vals}; give "
+              "--nominal to set them")
