@@ -14,7 +14,7 @@ import numpy as np
 from ..sensor.laser import cone_points_geo
 from ..sensor.parameters import from_identifiable, identifiable_jacobian
 
-__all__ = ["solve_map", "MapSolution", "damped_step"]
+__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv"]
 
 
 class MapSolution:
@@ -95,7 +95,7 @@ def _schur_step(A, B, C, gt, gq, lam, u):
     Ad = A + lam * np.diag(np.diag(A))
     Cd = C.copy()
     Cd[:, [0, 1], [0, 1]] *= 1.0 + lam
-    Cinv = np.linalg.inv(Cd)
+    Cinv = safe_inv(Cd)
     BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]          # (N, nt + 1, 2)
     S = Ad - np.einsum("nik,njk->ij", BC, B)
     rhs = -(gt - np.einsum("nik,nk->i", BC, gq))
@@ -166,10 +166,10 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
             converged, message = True, "converged (relative cost decrease or step below tolerance)"
             break
     # Laplace covariance at the solution (undamped Schur complement)
-    Cinv = np.linalg.inv(C)
+    Cinv = safe_inv(C)
     BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]
     S = A - np.einsum("nik,njk->ij", BC, B)
-    cov_full = np.linalg.inv(S)                      # (theta, phi)
+    cov_full = safe_inv(S)                           # (theta, phi)
     _, Jp = _prior_rows(prior, theta)
     nt = lik.n_geo
     info_data = (S - Jp.T @ Jp)[:nt, :nt]            # what the data alone say about theta
@@ -216,6 +216,32 @@ def damped_step(propose, cost_of, cost, lam, *, max_tries=30):
             return step, new_cost, lam, nfev
         lam *= 4.0
     return None, cost, lam, nfev
+
+
+#: a singular information matrix's eigenvalues are floored at this fraction of its largest
+SINGULAR_FLOOR = 1e-12
+
+
+def safe_inv(M):
+    """Inverse of a symmetric information matrix, or of a stack of them (..., k, k).
+
+    A singular one (a point or parameter the data do not determine, e.g. a row whose
+    approximate point lies in another room) does not stop the fit: its eigenvalues are
+    floored at :data:`SINGULAR_FLOOR` of its largest, so the undetermined direction
+    gets a huge variance (never a small, false one as a pseudo-inverse would give).
+    """
+    try:
+        out = np.linalg.inv(M)
+        if np.all(np.isfinite(out)):
+            return out
+    except np.linalg.LinAlgError:
+        pass
+    Ms = 0.5 * (M + np.swapaxes(M, -1, -2))
+    Ms = np.where(np.isfinite(Ms), Ms, 0.0)
+    e, V = np.linalg.eigh(Ms)
+    top = np.max(np.abs(e), axis=-1, keepdims=True)
+    e = np.maximum(e, SINGULAR_FLOOR * np.where(top > 0, top, 1.0))
+    return np.einsum("...ij,...j,...kj->...ik", V, 1.0 / e, V)
 
 
 def _point_covariances(theta, q, Cinv, B, cov_t, u):

@@ -52,7 +52,7 @@ from .collapsed import (
 )
 from .collapsed import posterior_outlier_prob as _outlier_prob
 from .floorplan import SCENE_REQUIRED, sample_plan_posterior
-from .steps import from_sampling, ring_scale, seeded_sampler, to_sampling
+from .steps import BUDGET_FACTOR, from_sampling, ring_scale, seeded_sampler, to_sampling
 
 __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
@@ -176,7 +176,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
-                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
+                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune,
+                           budget=BUDGET_FACTOR)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
