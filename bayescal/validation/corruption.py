@@ -12,7 +12,8 @@ wrong place. :func:`corrupt` makes each kind from a clean :class:`~bayescal.Data
   and at most ``MAX_FALSE_FLAGGED`` of the good ones are flagged (outlier probability
   > 0.5, or named by a warning);
 * **refused**: a bayescal error (a failed fit, a not-converged result, bad input) that
-  names rows;
+  names rows, when more than ``MAX_REFUSABLE`` (5 %) of the rows are corrupted or the
+  corruption is in the floor plan (with fewer bad rows a refusal is a failure);
 * anything else fails: a converged result that misses the corruption, a parameter on a
   bound called converged, or a numpy/scipy exception.
 """
@@ -33,7 +34,7 @@ from ..scene.floorplan import FloorPlan
 
 __all__ = ["KINDS", "PIXEL_KINDS", "POINT_KINDS", "MIXED_KINDS", "PLAN_KINDS", "Corruption",
            "corrupt", "judge", "run_case", "ERROR_RATIO",
-           "MIN_FLAGGED", "MAX_FALSE_FLAGGED"]
+           "MIN_FLAGGED", "MAX_FALSE_FLAGGED", "MAX_REFUSABLE"]
 
 #: corruptions of the laser pixels (they apply to floor-plan fits too)
 PIXEL_KINDS = ("gross_pixel", "streak", "random_gross", "ghost_ring")
@@ -51,6 +52,9 @@ PLAN_KINDS = ("wall_off",)
 ERROR_RATIO = 1.25
 MIN_FLAGGED = 0.9
 MAX_FALSE_FLAGGED = 0.01
+#: with at most this fraction of the rows corrupted a refusal is a failure: the fit must
+#: handle them (a wall drawn off corrupts no row and may still be refused)
+MAX_REFUSABLE = 0.05
 
 
 @dataclasses.dataclass
@@ -280,6 +284,16 @@ def judge(outcome, corruption, truth_points, clean_error, *, warned_rows=()):
     """
     out = {"verdict": "FAILED", "why": "", "error_ratio": np.nan, "flagged": np.nan,
            "false_flagged": np.nan}
+    n_bad = len(corruption.rows)
+    refusable = n_bad == 0 or n_bad > MAX_REFUSABLE * len(truth_points)
+    out = _judge_outcome(outcome, corruption, truth_points, clean_error, warned_rows, out)
+    if out["verdict"] == "refused" and not refusable:
+        out.update(verdict="FAILED", why=f"refused with {n_bad} of {len(truth_points)} rows "
+                   f"corrupted (<= {MAX_REFUSABLE:.0%}): {out['why']}"[:200])
+    return out
+
+
+def _judge_outcome(outcome, corruption, truth_points, clean_error, warned_rows, out):
     if isinstance(outcome, BaseException):
         tb = outcome.__traceback__
         while tb is not None and tb.tb_next is not None:
