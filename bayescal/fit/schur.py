@@ -14,7 +14,8 @@ import numpy as np
 from ..sensor.laser import cone_points_geo
 from ..sensor.parameters import from_identifiable, identifiable_jacobian
 
-__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv"]
+__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "SINGULAR_FLOOR", "STALL_WINDOW",
+           "STALL_TOL"]
 
 
 class MapSolution:
@@ -104,6 +105,11 @@ def _schur_step(A, B, C, gt, gq, lam, u):
     return dt, dq
 
 
+#: the solver stops as converged when its cost fell by less than ``STALL_TOL`` (relative)
+#: over the last ``STALL_WINDOW`` accepted steps (a crawl that used to end at max_iter)
+STALL_WINDOW, STALL_TOL = 20, 1e-8
+
+
 def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
               max_iter=200, ftol=1e-12, xtol=1e-10, weights=None):
     """Levenberg-Marquardt on (theta, phi) and the scene coordinates (noise levels fixed).
@@ -144,7 +150,7 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     if not np.isfinite(cost):
         raise ValueError("the starting point puts some laser points outside the model's "
                          "domain (non-finite residuals); give a better init")
-    n_done = 0
+    n_done, history = 0, [cost]
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
         # the two closures are called within this iteration only (so B023 does not apply)
         step, new_cost, lam, n = damped_step(
@@ -164,6 +170,13 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
         lam = max(lam / 3.0, 1e-12)
         if rel < ftol or small_step:
             converged, message = True, "converged (relative cost decrease or step below tolerance)"
+            break
+        history.append(cost)
+        if len(history) > STALL_WINDOW and \
+                history[-STALL_WINDOW - 1] - cost < STALL_TOL * max(cost, 1e-300):
+            # crawling along a flat direction (e.g. an outlier's nearly free point): the
+            # cost no longer changes by anything the noise could tell apart
+            converged, message = True, "converged (cost stationary over the last steps)"
             break
     # Laplace covariance at the solution (undamped Schur complement)
     Cinv = safe_inv(C)

@@ -57,3 +57,17 @@ def test_the_robust_start_handles_a_messy_file_with_the_noise_inferred(room):
     res = simul._checked(lik, prior, fit, True)[0]
     v = judge(res, c, room.points, err)
     assert v["verdict"] == "handled", v
+
+
+def test_a_solver_crawling_along_a_flat_direction_stops_as_converged():
+    """5000 mm, 1 % points by the paper's protocol, a block of 10 rows mis-paired, the
+    pixel noise inferred: LM lowered the cost by 2e-6 per 20 steps until max_iter ended it
+    'not converged'; the stall rule (schur.STALL_WINDOW, STALL_TOL) now ends the crawl."""
+    ds = bc.simulate_room(range_mm=5000.0, n_points=300, n_walls=7, sigma_px=0.1,
+                          approx_error=0.01, approx_model="fig9", rng=24)
+    c = corrupt(ds, "block_mispaired", rng=902)
+    res = bc.calibrate_simultaneous(c.pixels, c.approx_points, sigma_px=None,
+                                    sigma_scene=ds.sigma_scene)
+    assert res.converged and "stationary" in res.message
+    assert np.all(res.outlier_prob[c.rows] > 0.5)
+    assert np.sum(res.outlier_prob > 0.5) == len(c.rows)
