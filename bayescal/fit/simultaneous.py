@@ -231,7 +231,7 @@ def _checked(lik, prior, fit, absolute_sigma):
             return None, exc
     result = _make_result(lik, prior, fit, absolute_sigma, False)
     result.extras["robust_start"] = fit.robust
-    if result.converged and lik.n_noise and lik.outliers:
+    if result.converged and lik.n_noise and lik.outliers and not fit.robust:
         _check_trimmed_noise(lik, fit, result)
     return result, None if result.converged else "not converged"
 
@@ -244,7 +244,10 @@ TRIMMED_NOISE_LIMIT = 1.75
 def _check_trimmed_noise(lik, fit, result):
     """Mark ``result`` not converged when a block of rows the mixture kept as inliers set
     the inferred noise: the level exceeds :data:`TRIMMED_NOISE_LIMIT` times its estimate
-    from the best-fitting points (a ghost ring's 15 rows doubled sigma_px, flagged none)."""
+    from the best-fitting points (a ghost ring's 15 rows doubled sigma_px, flagged none).
+    Applied to the plain start only: it sends the fit to the robust start, whose result
+    the other checks judge (so that data whose residuals are heavy-tailed everywhere are
+    not refused on this ratio alone)."""
     sig, kappa = _fit_noise(lik, fit, trim=NOISE_TRIM)
     ratios = [("sigma_px", fit.sig / sig)] if lik.infer_px else []
     if lik.infer_scene:
