@@ -193,8 +193,10 @@ def _bayes(job):
     from ..sensor.parameters import SensorParams
 
     data, kw = job.data, {}
-    if job.max_steps is not None:
+    if job.max_steps is not None:         # asked for a longer run: no time budget
         kw["max_steps"] = job.max_steps
+        if job.plan is None and _accepts(bc.sample_posterior, "budget"):
+            kw["budget"] = None
     if job.nominal != SensorParams.paper():
         kw["init"] = job.nominal
     if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
@@ -218,6 +220,12 @@ def _bayes(job):
                           "simultaneous") from None
     if post.converged or job.allow_unconverged:
         return post, None
+    diag = getattr(post, "diagnostics", None)
+    stopped = (diag.extra or {}).get("stopped") if diag is not None else None
+    if stopped:
+        return post, (f"the posterior sampler did not converge: it {stopped}; outputs "
+                      "written for diagnosis. Check the rows flagged as outliers, run "
+                      "longer (--max-steps) or pass --allow-unconverged")
     return post, ("the posterior sampler did not converge (chains shorter than 50 "
                   "autocorrelation times); outputs written for diagnosis. Run longer "
                   "(--max-steps) or pass --allow-unconverged")
@@ -282,14 +290,17 @@ def _calibrate(job, choice):
 
     data = job.data
     job = replace(job, model=choice.resolve(job, _least_squares).model)
-    if job.method == "bayes":
-        return _bayes(job)
     try:
+        if job.method == "bayes":
+            return _bayes(job)
         result = choice.fits.get(job.model)
         result = _least_squares(job) if result is None else result
     except ConvergenceError as exc:
         if exc.result is None:
             raise Failure(f"{job.method} calibration did not converge: {exc}") from None
+        if job.method == "bayes":           # no posterior without its least-squares start
+            raise Failure("the posterior's least-squares start did not converge: "
+                          f"{_located(exc.result, data)}; nothing was written") from None
         return exc.result, (f"{job.method} calibration did not converge: "
                             f"{_located(exc.result, data)}")
     except (NoiseCollapseError, DegenerateInputError):

@@ -41,7 +41,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES
-from .schur import _prior_rows, damped_step
+from .schur import _prior_rows, damped_step, safe_inv
 
 __all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
 
@@ -166,7 +166,7 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
             converged, message = True, "relative cost decrease or step below tolerance"
             break
     S, _ = _schur(ne)
-    cov = np.linalg.inv(S)
+    cov = safe_inv(S)
     return PlanMapSolution(g=g, t=t, cost=float(cost), cov=0.5 * (cov + cov.T), S=S, ne=ne,
                            wall_index=ne["k"], nfev=nfev, n_iter=n_done, converged=converged,
                            message=message, sigma_px=float(sig))

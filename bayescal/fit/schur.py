@@ -13,7 +13,8 @@ import numpy as np
 
 from ..sensor.laser import cone_points_geo
 
-__all__ = ["solve_map", "MapSolution", "damped_step"]
+__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "SINGULAR_FLOOR", "STALL_WINDOW",
+           "STALL_TOL"]
 
 
 class MapSolution:
@@ -94,13 +95,18 @@ def _schur_step(A, B, C, gt, gq, lam, u):
     Ad = A + lam * np.diag(np.diag(A))
     Cd = C.copy()
     Cd[:, [0, 1], [0, 1]] *= 1.0 + lam
-    Cinv = np.linalg.inv(Cd)
+    Cinv = safe_inv(Cd)
     BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]          # (N, nt + 1, 2)
     S = Ad - np.einsum("nik,njk->ij", BC, B)
     rhs = -(gt - np.einsum("nik,nk->i", BC, gq))
     dt = np.linalg.solve(S, rhs)
     dq = -np.einsum("nij,nj->ni", Cinv, gq + np.einsum("nki,k->ni", B, dt))
     return dt, dq
+
+
+#: the solver stops as converged when its cost fell by less than ``STALL_TOL`` (relative)
+#: over the last ``STALL_WINDOW`` accepted steps (a crawl that used to end at max_iter)
+STALL_WINDOW, STALL_TOL = 20, 1e-8
 
 
 def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
@@ -143,7 +149,7 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     if not np.isfinite(cost):
         raise ValueError("the starting point puts some laser points outside the model's "
                          "domain (non-finite residuals); give a better init")
-    n_done = 0
+    n_done, history = 0, [cost]
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
         # the two closures are called within this iteration only (so B023 does not apply)
         step, new_cost, lam, n = damped_step(
@@ -164,11 +170,18 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
         if rel < ftol or small_step:
             converged, message = True, "relative cost decrease or step below tolerance"
             break
+        history.append(cost)
+        if len(history) > STALL_WINDOW and \
+                history[-STALL_WINDOW - 1] - cost < STALL_TOL * max(cost, 1e-300):
+            # crawling along a flat direction (e.g. an outlier's nearly free point): the
+            # cost no longer changes by anything the noise could tell apart
+            converged, message = True, "converged (cost stationary over the last steps)"
+            break
     # Laplace covariance at the solution (undamped Schur complement)
-    Cinv = np.linalg.inv(C)
+    Cinv = safe_inv(C)
     BC = np.einsum("nij,njk->nik", B, Cinv) * u[:, None, None]
     S = A - np.einsum("nik,njk->ij", BC, B)
-    cov_full = np.linalg.inv(S)                      # (theta, phi)
+    cov_full = safe_inv(S)                           # (theta, phi)
     _, Jp = _prior_rows(prior, theta)
     nt = lik.n_geo
     info_data = (S - Jp.T @ Jp)[:nt, :nt]            # what the data alone say about theta
@@ -215,6 +228,32 @@ def damped_step(propose, cost_of, cost, lam, *, max_tries=30):
             return step, new_cost, lam, nfev
         lam *= 4.0
     return None, cost, lam, nfev
+
+
+#: a singular information matrix's eigenvalues are floored at this fraction of its largest
+SINGULAR_FLOOR = 1e-12
+
+
+def safe_inv(M):
+    """Inverse of a symmetric information matrix, or of a stack of them (..., k, k).
+
+    A singular one (a point or parameter the data do not determine, e.g. a row whose
+    approximate point lies in another room) does not stop the fit: its eigenvalues are
+    floored at :data:`SINGULAR_FLOOR` of its largest, so the undetermined direction
+    gets a huge variance (never a small, false one as a pseudo-inverse would give).
+    """
+    try:
+        out = np.linalg.inv(M)
+        if np.all(np.isfinite(out)):
+            return out
+    except np.linalg.LinAlgError:
+        pass
+    Ms = 0.5 * (M + np.swapaxes(M, -1, -2))
+    Ms = np.where(np.isfinite(Ms), Ms, 0.0)
+    e, V = np.linalg.eigh(Ms)
+    top = np.max(np.abs(e), axis=-1, keepdims=True)
+    e = np.maximum(e, SINGULAR_FLOOR * np.where(top > 0, top, 1.0))
+    return np.einsum("...ij,...j,...kj->...ik", V, 1.0 / e, V)
 
 
 def _point_covariances(theta, q, Cinv, B, cov_t, u):

@@ -21,16 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checks.fit import check_noise_levels, flag_untrusted
+from ..checks.fit import NoiseCollapseError, check_noise_levels, flag_untrusted, worst_rows
 from ..checks.inputs import check_calibration_input
 from ..likelihood.misaligned import MisalignedLikelihood
-from ..likelihood.outliers import (
-    NOISE_TRIM,
-    OUTLIER_PRIOR,
-    OUTLIER_SCALE,
-    annealed_outlier_prob,
-    em_update,
-)
+from ..likelihood.outliers import NOISE_TRIM, OUTLIER_PRIOR, OUTLIER_SCALE
 from ..likelihood.points import LaserLikelihood
 from ..likelihood.priors import as_prior
 from ..results.calibration import (
@@ -48,6 +42,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES, LaserPose
+from .em import _fit_map, _fit_noise
 from .fixed_points import calibrate_fixed_points
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
@@ -215,10 +210,67 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     if not estimate_points:
         return calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
 
-    fit = _fit_map(lik, prior, theta0, q0, max_iter)
+    result, problem = _checked(lik, prior, _fit_map(lik, prior, theta0, q0, max_iter),
+                               absolute_sigma)
+    if problem is not None and lik.outliers:
+        # a parameter or noise level on its bound is a symptom of a start the bad rows
+        # dragged: try the high-breakdown start before giving up (docs/robustness.md)
+        again, problem2 = _checked(lik, prior, _fit_map(lik, prior, theta0, q0, max_iter,
+                                                        robust=True), absolute_sigma)
+        if problem2 is None:
+            result, problem = again, None
+    if isinstance(problem, NoiseCollapseError):
+        raise problem
+    if problem is not None and raise_on_failure:
+        raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
+                               result=result)
+    return result
+
+
+def _checked(lik, prior, fit, absolute_sigma):
+    """The result of a fit and what is wrong with it (None, a NoiseCollapseError, or
+    ``"not converged"``: the result says why)."""
     if lik.n_noise:
-        check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
-    return _make_result(lik, prior, fit, absolute_sigma, raise_on_failure)
+        try:
+            check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]),
+                               fit.sol.q)
+        except NoiseCollapseError as exc:
+            return None, exc
+    result = _make_result(lik, prior, fit, absolute_sigma, False)
+    result.extras["robust_start"] = fit.robust
+    if result.converged and lik.n_noise and lik.outliers and not fit.robust:
+        _check_trimmed_noise(lik, fit, result)
+    return result, None if result.converged else "not converged"
+
+
+#: an inferred level more than this many times its estimate from the best-fitting
+#: ``1 - NOISE_TRIM`` of the points is set by a few rows (clean rooms: 1.10-1.43)
+TRIMMED_NOISE_LIMIT = 1.75
+
+
+def _check_trimmed_noise(lik, fit, result):
+    """Mark ``result`` not converged when a block of rows the mixture kept as inliers set
+    the inferred noise: the level exceeds :data:`TRIMMED_NOISE_LIMIT` times its estimate
+    from the best-fitting points (a ghost ring's 15 rows doubled sigma_px, flagged none).
+    Applied to the plain start only: it sends the fit to the robust start, whose result
+    the other checks judge (so that data whose residuals are heavy-tailed everywhere are
+    not refused on this ratio alone)."""
+    sig, kappa = _fit_noise(lik, fit, trim=NOISE_TRIM)
+    ratios = [("sigma_px", fit.sig / sig)] if lik.infer_px else []
+    if lik.infer_scene:
+        ratios.append(("kappa", fit.kappa / kappa))
+    bad = [(n, r) for n, r in ratios if r > TRIMMED_NOISE_LIMIT]
+    if not bad:
+        return
+    m = lik.min_residual(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
+    rows = worst_rows(m, np.maximum(lik._n_rows - 2, 1))
+    name, ratio = bad[0]
+    result.converged = False
+    result.message = (f"the inferred {name} is {ratio:.3g} times its estimate from the best-"
+                      f"fitting {1 - NOISE_TRIM:.0%} of the points: a few rows set it, and "
+                      "every sd with it (rows fitting worst, 0-based: "
+                      + ", ".join(map(str, rows)) + ")")
+    result.extras["failed_rows"] = rows
 
 
 def point_likelihood(model, pixels, approx_points, prior, **kw):
@@ -227,132 +279,6 @@ def point_likelihood(model, pixels, approx_points, prior, **kw):
     if model == "misaligned":
         return MisalignedLikelihood(pixels, approx_points, prior=prior, **kw)
     return LaserLikelihood(pixels, approx_points, **kw)
-
-
-class _MapFit:
-    """The MAP and the noise levels / outlier state it was solved at (internal)."""
-
-    def __init__(self, **kw):
-        self.__dict__.update(kw)
-
-    def extra(self, lik):
-        """The likelihood's extra globals at this fit, shape (n_extra,)."""
-        e = []
-        if lik.infer_px:
-            e.append(np.log(self.sig))
-        if lik.infer_scene:
-            e.append(np.log(self.kappa))
-        if lik.outliers:
-            e.append(np.log(self.w) - np.log1p(-self.w))
-        return np.array(e)
-
-    def w_scene(self, lik):
-        if lik.infer_scene:
-            return np.ones((1, 3)) / (self.kappa * lik.rho[:, None])
-        return lik.w_scene
-
-
-def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3):
-    """MAP of the (mixture) model: LM on (theta, q), alternating with the noise levels and,
-    with outliers, with the EM responsibilities ``r`` and the outlier fraction ``w``.
-
-    EM for the outlier mixture: the E-step computes each point's outlier probability
-    with the points integrated out (:meth:`LaserLikelihood.outlier_prob`); the M-step is
-    the least squares with per-point weights ``(1 - r_i) + r_i / c^2`` (the outlier
-    component is the same Gaussian with c times the noise) and the logit-scale mode
-    ``w = (sum r + a) / (N + a + b)``. The first E-step is taken at the start with the
-    noise scaled to the median point's residual (annealing), so that a gross error
-    never enters the first fit at full weight.
-    """
-    a, b = lik.outlier_prior
-    fit = _MapFit(sig=1.0 if lik.infer_px else lik.sigma_px, kappa=0.05, sol=None,
-                  w=a / (a + b), r=np.zeros(lik.n), n_rounds=0)
-    u = np.ones(lik.n)
-    if lik.outliers:
-        fit.r = _initial_outlier_prob(lik, fit, theta0, q0)
-        u = em_update(fit.r, lik.outlier_prior, lik.outlier_scale)[1]
-    rounds = max_rounds if lik.outliers else 1 + 3 * lik.n_noise
-    for k in range(rounds):
-        fit.sol = solve_map(lik, prior, theta0, q0, sigma_px=fit.sig, w_scene=fit.w_scene(lik),
-                            max_iter=max_iter, weights=u)
-        fit.n_rounds = k + 1
-        theta0, q0 = fit.sol.theta, fit.sol.q
-        old = (fit.sig, fit.kappa)
-        if lik.n_noise:
-            # the first noise fit leaves out the worst-fitting points (a robust start the
-            # bad rows cannot drag: docs/robustness.md), later ones use the mixture
-            fit.sig, fit.kappa = _fit_noise(lik, fit, trim=NOISE_TRIM if k == 0 else 0.0)
-        if not lik.outliers:
-            continue
-        r = lik.outlier_prob(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q,
-                             n_iter=2)
-        r = np.where(np.isfinite(r), r, 1.0)
-        change = np.max(np.abs(r - fit.r))
-        fit.r = r
-        fit.w, u = em_update(r, lik.outlier_prior, lik.outlier_scale)
-        noise_change = max(abs(np.log(fit.sig / old[0])), abs(np.log(fit.kappa / old[1])))
-        if change < r_tol and noise_change < 1e-4 and k > 0:
-            break
-    return fit
-
-
-def _initial_outlier_prob(lik, fit, theta0, q0):
-    """Outlier probabilities at the start (:func:`~.outliers.annealed_outlier_prob`;
-    ``m_i`` at the point's own best q, ``dof_i = n_rows_i - 2``)."""
-    extra = fit.extra(lik)
-    m = lik.min_residual(np.concatenate([theta0, extra]), q0)
-    c, n_rows = lik.outlier_scale, lik._n_rows
-
-    def log_ratio(mm):                  # mix's: two latent dimensions, n_rows rows
-        return 0.5 * mm * (1.0 - 1.0 / c**2) + (2.0 - n_rows) * np.log(c)
-
-    r = annealed_outlier_prob(m, np.maximum(n_rows - 2, 1), extra[-1], log_ratio)
-    return np.zeros(lik.n) if r is None else r
-
-
-def _fit_noise(lik, fit, trim=0.0):
-    """Maximise the collapsed likelihood (points integrated out) over the inferred noise.
-
-    The joint maximum over points and noise degenerates (each point can absorb its two
-    pixel rows, driving sigma_px to 0); integrating the points out keeps their degrees
-    of freedom (the REML-like behaviour of the flat noise prior). With outliers the
-    likelihood is the mixture's at the current outlier fraction. With ``trim`` > 0 only
-    the best ``1 - trim`` of the points' terms count (a least-trimmed likelihood): a
-    block of bad rows (a reflection streak) cannot inflate the noise it is judged by.
-    """
-    from scipy.optimize import minimize
-
-    sol, sig, kappa = fit.sol, fit.sig, fit.kappa
-    tail = fit.extra(lik)[lik.n_noise:]
-    lik.set_reference_noise(sigma_px=sig, kappa=kappa)
-    x0 = []
-    if lik.infer_px:
-        x0.append(np.log(sig))
-    if lik.infer_scene:
-        x0.append(np.log(kappa))
-
-    n_keep = lik.n - int(trim * lik.n)
-
-    def f(e):
-        psi = np.concatenate([sol.theta, e, tail])
-        if n_keep < lik.n:
-            terms = lik._laplace_points(psi, sol.q, 3)[0]
-            terms = np.where(np.isfinite(terms), terms, -np.inf)
-            v = np.sum(np.sort(terms)[lik.n - n_keep:])
-        else:
-            v = lik.laplace(psi, sol.q, n_iter=3)[0]
-        v = v + lik.log_prior_extra(psi[7:])
-        return -v if np.isfinite(v) else 1e300
-
-    e = minimize(f, np.array(x0), method="Nelder-Mead",
-                 options={"xatol": 1e-4, "fatol": 1e-6}).x
-    k = 0
-    if lik.infer_px:
-        sig = float(np.exp(e[k]))
-        k += 1
-    if lik.infer_scene:
-        kappa = float(np.exp(e[k]))
-    return sig, kappa
 
 
 def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):

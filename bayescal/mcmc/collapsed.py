@@ -154,10 +154,14 @@ def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stac
     """
     if diag.converged:
         return
-    msg = (f"{what} did not converge within max_steps={max_steps}: it has "
-           f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
-           f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
-           f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
+    stopped = diag.extra.get("stopped") if diag.extra else None
+    limit = stopped if stopped else f"within max_steps={max_steps}"
+    msg = (f"{what} did not converge ({limit}): it has " if stopped else
+           f"{what} did not converge {limit}: it has ")
+    msg += (
+        f"{diag.n_steps - diag.burn} steps after burn-in (need more than "
+        f"{diag.tau_factor:g} x tau = {diag.tau_factor * np.max(diag.tau):.0f}) and a "
+        f"minimum ESS of {np.min(diag.ess):.0f} (need {diag.min_ess:g})")
     if on_unconverged == "raise":
         raise NotConvergedError(msg, tau=diag.tau, posterior=posterior)
     warnings.warn(msg, NotConvergedWarning, stacklevel=stacklevel + 1)
@@ -175,7 +179,8 @@ def _camera_holds_gamma(prior, cov_psi):
 
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
-                     moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None):
+                     moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None,
+                     budget=None):
     """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
     Parameters
@@ -196,6 +201,10 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         As in :func:`sample_posterior`.
     n_tune : int, optional
         Steps per tuning round (default 60 with a gradient, else 150).
+    budget : float, optional
+        Stop, not converged, after this many times the steps the stopping rule
+        projected after 200 steps (:func:`~bayescal.mcmc.steps.run_until_converged`);
+        None: run to ``max_steps``.
 
     Returns
     -------
@@ -243,7 +252,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=100, progress=progress,
-                               coords=coords)
+                               coords=coords, budget=budget)
     diag = ChainDiagnostics(
         names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
         tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
@@ -251,7 +260,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
         moves=_moves_text(prod_moves),
         extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
-               "hmc_step_size": fit["step_size"]})
+               "hmc_step_size": fit["step_size"], "stopped": info.get("stopped")})
     psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
     # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
     q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,

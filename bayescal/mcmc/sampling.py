@@ -52,7 +52,7 @@ from .collapsed import (
 )
 from .collapsed import posterior_outlier_prob as _outlier_prob
 from .floorplan import SCENE_REQUIRED, sample_plan_posterior
-from .steps import from_sampling, ring_scale, seeded_sampler, to_sampling
+from .steps import BUDGET_FACTOR, from_sampling, ring_scale, seeded_sampler, to_sampling
 
 __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
@@ -62,7 +62,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
-                     outliers=True, model="aligned", pixel_cov=None, camera=None):
+                     outliers=True, model="aligned", pixel_cov=None, camera=None,
+                     budget=BUDGET_FACTOR):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -98,6 +99,13 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         Convergence rule: post-burn-in chain longer than ``tau_factor * tau``.
     max_steps : int, optional
         Hard limit on chain length.
+    budget : float or None, optional
+        Time budget: the chain stops, not converged (``on_unconverged`` says how it is
+        reported, the message says why), after ``budget`` times the steps its stopping
+        rule projected after 200 steps (default 3; a clean chain meets the rule near
+        that projection, one whose autocorrelation time keeps growing does not: rows
+        switching between inlier and outlier, several modes). ``None``: run to
+        ``max_steps``.
     n_samples : int, optional
         Number of joint samples (parameters and points) kept, thinned evenly
         from the converged chain.
@@ -159,9 +167,13 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
     prior = as_prior(prior, camera)
+    if budget is not None and not (isinstance(budget, (int, float, np.number))
+                                   and not isinstance(budget, bool) and budget >= 1):
+        raise ValueError(f"budget must be None or a number >= 1 (times the projected "
+                         f"steps), got {budget!r}")
     if isinstance(approx_points, FloorPlan):          # walls in place of points
         kw = {k: v for k, v in locals().items()
-              if k not in ("pixels", "approx_points", "camera")}
+              if k not in ("pixels", "approx_points", "camera", "budget")}
         return sample_plan_posterior(pixels, approx_points, **kw)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
@@ -182,7 +194,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
-                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune)
+                           n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune,
+                           budget=budget)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)

@@ -83,7 +83,7 @@ def imh_df(ndim):
 __all__ = ["ring_scale", "depth_scale", "Coordinates", "log_jacobian", "to_sampling",
            "from_sampling", "sampling_jacobian", "CollapsedTarget", "fit_proposal", "tune_proposal",
            "seeded_sampler", "run_until_converged", "imh_df", "default_walkers",
-           "min_walkers", "de_move"]
+           "min_walkers", "de_move", "BUDGET_FACTOR"]
 
 
 class CollapsedTarget:
@@ -315,21 +315,32 @@ def _assess(chain, tau_factor, burn_factor, coords=None):
     return burn, ess, tau, converged
 
 
+#: a chain may take this many times the steps its stopping rule first projected
+BUDGET_FACTOR = 3.0
+
+
 def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, progress,
-                        burn_factor=5.0, coords=None):
+                        burn_factor=5.0, coords=None, budget=None):
     """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
 
     The progress bar shows the percentage of the stopping rule met so far: the
     smaller of ``min ESS / min_ess`` and ``kept steps / (tau_factor * max tau)``.
+
+    **Budget.** After 200 steps the rule projects the steps it needs; a healthy chain
+    meets it near that projection. With ``budget`` the run stops, not converged, once
+    it has taken ``budget`` times that projection (at least ``budget * 200`` steps)
+    and still misses the rule: its autocorrelation time
+    grew on the way, typically rows switching between inlier and outlier, or several
+    modes. ``info["stopped"]`` then says so (``None`` to run to ``max_steps``).
 
     Returns
     -------
     dict
         ``tau``, ``ess`` (per coordinate, :func:`bayescal.stats.chains.ensemble_ess`),
         ``burn``, ``n_steps``, ``converged`` (the 50-tau part of the rule and the
-        ESS target both met).
+        ESS target both met), ``stopped`` (why the budget stopped it, or None).
     """
-    state, total, info, pbar = p0, 0, {}, None
+    state, total, info, pbar, first = p0, 0, {}, None, None
     if progress:
         from tqdm.auto import tqdm
 
@@ -343,7 +354,7 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                                                  coords)
             done = long_enough and np.min(ess) >= min_ess
             info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(done),
-                    "ess": ess}
+                    "ess": ess, "stopped": None}
             if pbar is not None:
                 with np.errstate(invalid="ignore", divide="ignore"):
                     frac = min(np.min(ess) / min_ess, (total - burn) / (tau_factor * np.max(tau)))
@@ -355,7 +366,20 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
             # grow the next chunk to what the current tau says is still needed
             need_len = max(tau_factor * np.max(tau), min_ess * np.max(tau) / sampler.nwalkers)
             need = need_len + burn - total if np.isfinite(need_len) else chunk
+            if first is None and total >= 200:        # tau from >= 200 steps, not fewer
+                first = (max(need_len + burn, total) if np.isfinite(need_len) else total,
+                         float(np.max(tau)))
+            if budget is not None and first is not None and total >= budget * first[0]:
+                info["stopped"] = (
+                    f"stopped by its time budget after {total} steps, {budget:g} times the "
+                    f"{first[0]:.0f} the stopping rule first projected: the autocorrelation "
+                    f"time grew from {first[1]:.3g} to {np.max(tau):.3g} steps (rows switching "
+                    "between inlier and outlier, or several modes: see outlier_prob and the "
+                    "least-squares fit)")
+                break
             chunk = int(np.clip(1.2 * need, 50, max(chunk, 50) * 4))
+            if budget is not None and first is not None:    # end on the budget, not past it
+                chunk = int(max(min(chunk, budget * first[0] - total), 1))
     finally:
         if pbar is not None:
             pbar.close()

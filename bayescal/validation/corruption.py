@@ -12,7 +12,8 @@ wrong place. :func:`corrupt` makes each kind from a clean :class:`~bayescal.Data
   and at most ``MAX_FALSE_FLAGGED`` of the good ones are flagged (outlier probability
   > 0.5, or named by a warning);
 * **refused**: a bayescal error (a failed fit, a not-converged result, bad input) that
-  names rows;
+  names rows, when more than ``MAX_REFUSABLE`` (5 %) of the rows are corrupted or the
+  corruption is in the floor plan (with fewer bad rows a refusal is a failure);
 * anything else fails: a converged result that misses the corruption, a parameter on a
   bound called converged, or a numpy/scipy exception.
 """
@@ -31,18 +32,29 @@ from ..fit.simultaneous import calibrate_simultaneous
 from ..mcmc.sampling import sample_posterior
 from ..scene.floorplan import FloorPlan
 
-__all__ = ["KINDS", "PLAN_KINDS", "Corruption", "corrupt", "judge", "run_case", "ERROR_RATIO",
-           "MIN_FLAGGED", "MAX_FALSE_FLAGGED"]
+__all__ = ["KINDS", "PIXEL_KINDS", "POINT_KINDS", "MIXED_KINDS", "PLAN_KINDS", "Corruption",
+           "corrupt", "judge", "run_case", "ERROR_RATIO",
+           "MIN_FLAGGED", "MAX_FALSE_FLAGGED", "MAX_REFUSABLE"]
 
+#: corruptions of the laser pixels (they apply to floor-plan fits too)
+PIXEL_KINDS = ("gross_pixel", "streak", "random_gross", "ghost_ring")
+#: corruptions of the approximate points (correspondences, typing and unit slips)
+POINT_KINDS = ("metres", "centimetres", "sign_flip", "z_sign_flip", "times_ten", "xy_swap",
+               "rows_swapped", "far_swap", "block_mispaired")
+#: combinations: the messy file of docs/robustness.md (a typo, a swap, a spurious pixel and
+#: a z sign flip), and 5 % of the rows corrupted by kinds drawn at random
+MIXED_KINDS = ("mixed", "mixed_5pct")
 #: corruptions of laser data (pixels or approximate points)
-KINDS = ("gross_pixel", "streak", "random_gross", "metres", "sign_flip", "times_ten",
-         "xy_swap", "rows_swapped", "duplicated_block")
+KINDS = PIXEL_KINDS + POINT_KINDS + ("duplicated_block",) + MIXED_KINDS
 #: corruptions of a floor plan
 PLAN_KINDS = ("wall_off",)
 #: the invariant (module docstring)
 ERROR_RATIO = 1.25
 MIN_FLAGGED = 0.9
 MAX_FALSE_FLAGGED = 0.01
+#: with at most this fraction of the rows corrupted a refusal is a failure: the fit must
+#: handle them (a wall drawn off corrupts no row and may still be refused)
+MAX_REFUSABLE = 0.05
 
 
 @dataclasses.dataclass
@@ -80,45 +92,98 @@ def _radial(pixels, center):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _pixel_kinds(kind, ds, pix, rng, count):
+def _pixel_kinds(kind, ds, pix, rng, count, exclude=()):
     c = np.array([ds.params.u0, ds.params.v0])
-    if kind == "gross_pixel":
-        rows = _far_rows(ds.approx_points, count, rng)
+    free = np.setdiff1d(np.arange(len(pix)), exclude)
+    if kind == "gross_pixel":                 # a spurious detection 25 px away
+        rows = np.sort(rng.choice(free, size=count, replace=False))
         ang = rng.uniform(0, 2 * np.pi, count)
         pix[rows] += 25.0 * np.stack([np.cos(ang), np.sin(ang)], -1)
-    elif kind == "streak":                    # consecutive in azimuth, 3 px outward
+    elif kind in ("streak", "ghost_ring"):    # consecutive in azimuth
         az = np.argsort(np.arctan2(pix[:, 1] - c[1], pix[:, 0] - c[0]))
         start = int(rng.integers(len(pix)))
         rows = np.sort(az[(start + np.arange(max(count, 1) * 15)) % len(pix)])
-        pix[rows] += 3.0 * _radial(pix[rows], c)
+        if kind == "streak":                  # a reflection: 3 px outward
+            pix[rows] += 3.0 * _radial(pix[rows], c)
+        else:                                 # a ghost ring: 6 % of the radius inward
+            pix[rows] = c + 0.94 * (pix[rows] - c)
     else:                                     # random_gross: 5 % of the pixels, 5-30 px
-        rows = _far_rows(ds.approx_points, max(1, int(round(0.05 * len(pix)))), rng)
+        rows = np.sort(rng.choice(free, size=max(1, int(round(0.05 * len(pix)))),
+                                  replace=False))
         ang = rng.uniform(0, 2 * np.pi, len(rows))
         pix[rows] += rng.uniform(5, 30, len(rows))[:, None] * np.stack(
             [np.cos(ang), np.sin(ang)], -1)
     return rows
 
 
-def _point_kinds(kind, ds, apx, rng, count):
+def _swap(apx, rows, rng, far=False):
+    """Swap the points of pairs of rows at least 0.3 median ranges apart (``far``: one of
+    each pair comes from another room, 3 m further out)."""
+    count = len(rows) // 2
     rng_mm = float(np.median(np.hypot(apx[:, 0], apx[:, 1])))
-    if kind == "rows_swapped":
-        rows = _far_rows(apx, 2 * count, rng)
-        a, b = rows[:count], rows[count:]
-        swap = np.hypot(*(apx[a, :2] - apx[b, :2]).T) > 0.3 * rng_mm
-        a, b = a[swap], b[swap]
-        apx[np.r_[a, b]] = apx[np.r_[b, a]]
-        return np.sort(np.r_[a, b])
+    a, b = rows[:count], rows[count:]
+    keep = np.hypot(*(apx[a, :2] - apx[b, :2]).T) > 0.3 * rng_mm
+    a, b = a[keep], b[keep]
+    if far:
+        rho = np.hypot(apx[a, 0], apx[a, 1])
+        apx[a, :2] *= (1.0 + 3000.0 / rho)[:, None]
+    apx[np.r_[a, b]] = apx[np.r_[b, a]]
+    return np.sort(np.r_[a, b])
+
+
+def _point_kinds(kind, ds, apx, rng, count, exclude=()):
+    rng_mm = float(np.median(np.hypot(apx[:, 0], apx[:, 1])))
+    n = len(apx)
+    free = np.setdiff1d(np.arange(n), exclude)
+    if kind in ("rows_swapped", "far_swap"):
+        return _swap(apx, rng.choice(free, size=2 * count, replace=False), rng,
+                     far=kind == "far_swap")
+    if kind == "block_mispaired":            # 10 rows paired with another block's points
+        s = int(rng.integers(n))
+        rows = (s + np.arange(10 * count)) % n
+        src = (rows + n // 3) % n
+        apx[rows] = apx[src].copy()
+        return np.sort(rows)
     # a coordinate must move far: pick points with a large |x| (|x - y| for xy_swap)
     big = np.abs(apx[:, 0] - apx[:, 1]) if kind == "xy_swap" else np.abs(apx[:, 0])
-    rows = np.sort(rng.choice(np.flatnonzero(big > 0.4 * rng_mm), size=count, replace=False))
+    cand = np.intersect1d(np.flatnonzero(big > 0.4 * rng_mm), free)
+    rows = np.sort(rng.choice(cand, size=count, replace=False))
     if kind == "metres":
         apx[rows] /= 1000.0
+    elif kind == "centimetres":
+        apx[rows] /= 10.0
     elif kind == "sign_flip":
         apx[rows, 0] *= -1.0
+    elif kind == "z_sign_flip":
+        apx[rows, 2] *= -1.0
     elif kind == "times_ten":
         apx[rows, 0] *= 10.0
     else:
         apx[rows, :2] = apx[rows, ::-1][:, 1:]
+    return rows
+
+
+#: the kinds a 5 % mix draws from (one row each, or one pair of rows for a swap)
+_MIX_POOL = ("gross_pixel", "metres", "centimetres", "sign_flip", "z_sign_flip", "times_ten",
+             "xy_swap", "rows_swapped", "far_swap")
+
+
+def _mixed(kind, ds, pix, apx, rng):
+    """Several kinds in one file, on distinct rows."""
+    if kind == "mixed":
+        parts = ("times_ten", "rows_swapped", "gross_pixel", "z_sign_flip")
+    else:
+        budget, parts = int(0.05 * len(pix)), []
+        while budget > 0:
+            parts.append(str(rng.choice(_MIX_POOL if budget > 1 else PIXEL_KINDS[:1])))
+            budget -= 2 if parts[-1] in ("rows_swapped", "far_swap") else 1
+    rows = np.array([], int)
+    for part in parts:
+        if part in PIXEL_KINDS:
+            new = _pixel_kinds(part, ds, pix, rng, 1, exclude=rows)
+        else:
+            new = _point_kinds(part, ds, apx, rng, 1, exclude=rows)
+        rows = np.union1d(rows, new)
     return rows
 
 
@@ -151,8 +216,10 @@ def corrupt(ds, kind, *, count=1, rng=None):
     kind : str
         One of :data:`KINDS` or :data:`PLAN_KINDS`.
     count : int, optional
-        How many (rows, streaks of 15 pixels, swapped pairs, duplicated blocks of 10
-        rows); ``random_gross`` always corrupts 5 % of the pixels.
+        How many (rows, streaks or ghost-ring arcs of 15 pixels, swapped pairs, blocks of
+        10 rows mis-paired or duplicated); ``random_gross`` always corrupts 5 % of the
+        pixels, ``mixed`` five rows (a typo, a swapped pair, a spurious pixel, a z sign
+        flip) and ``mixed_5pct`` 5 % of the rows, kinds drawn at random.
     rng : numpy.random.Generator, int or None
 
     Returns
@@ -166,10 +233,12 @@ def corrupt(ds, kind, *, count=1, rng=None):
     """
     rng = resolve_rng(rng)
     pix, apx = ds.pixels.copy(), ds.approx_points.copy()
-    if kind in ("gross_pixel", "streak", "random_gross"):
+    if kind in PIXEL_KINDS:
         rows = _pixel_kinds(kind, ds, pix, rng, count)
-    elif kind in ("metres", "sign_flip", "times_ten", "xy_swap", "rows_swapped"):
+    elif kind in POINT_KINDS:
         rows = _point_kinds(kind, ds, apx, rng, count)
+    elif kind in MIXED_KINDS:
+        rows = _mixed(kind, ds, pix, apx, rng)
     elif kind == "duplicated_block":
         start = int(rng.integers(len(pix) - 10 * count))
         block = np.arange(start, start + 10 * count)
@@ -215,6 +284,16 @@ def judge(outcome, corruption, truth_points, clean_error, *, warned_rows=()):
     """
     out = {"verdict": "FAILED", "why": "", "error_ratio": np.nan, "flagged": np.nan,
            "false_flagged": np.nan}
+    n_bad = len(corruption.rows)
+    refusable = n_bad == 0 or n_bad > MAX_REFUSABLE * len(truth_points)
+    out = _judge_outcome(outcome, corruption, truth_points, clean_error, warned_rows, out)
+    if out["verdict"] == "refused" and not refusable:
+        out.update(verdict="FAILED", why=f"refused with {n_bad} of {len(truth_points)} rows "
+                   f"corrupted (<= {MAX_REFUSABLE:.0%}): {out['why']}"[:200])
+    return out
+
+
+def _judge_outcome(outcome, corruption, truth_points, clean_error, warned_rows, out):
     if isinstance(outcome, BaseException):
         tb = outcome.__traceback__
         while tb is not None and tb.tb_next is not None:
