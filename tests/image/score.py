@@ -1,0 +1,89 @@
+"""Score a laser extraction against the true ring of a rendered image (``renderer2.Truth2``).
+
+Each extracted pixel is compared with the true ring at the same image angle about ``center``:
+its error is the radial offset from the ring, projected on the ring's normal
+(``(r - r_true) cos psi``, ``tan psi = r_true' / r_true``), in px, positive away from the centre.
+"""
+
+import numpy as np
+
+
+def _ring_polar(truth, center):
+    """The true ring as radius against image angle about ``center``, sorted, for the visible
+    azimuths; also the half-width of an azimuth bin (rad)."""
+    pix = truth.pixels[truth.visible]
+    phi = np.arctan2(pix[:, 1] - center[1], pix[:, 0] - center[0])
+    r = np.hypot(pix[:, 0] - center[0], pix[:, 1] - center[1])
+    order = np.argsort(phi)
+    return phi[order], r[order]
+
+
+def _ring_radius(phi_t, r_t, phi):
+    """Radius of the ring and its derivative d r / d phi at image angles ``phi``, with NaN in
+    gaps of the visible ring wider than 3 azimuth steps."""
+    r = np.interp(phi, phi_t, r_t, period=2 * np.pi)
+    ext = np.concatenate([phi_t[-1:] - 2 * np.pi, phi_t, phi_t[:1] + 2 * np.pi])
+    rext = np.concatenate([r_t[-1:], r_t, r_t[:1]])
+    dr = np.gradient(rext, ext)[1:-1]
+    drdphi = np.interp(phi, phi_t, dr, period=2 * np.pi)
+    step = 2 * np.pi / max(len(phi_t), 1)
+    k = np.searchsorted(ext, phi)
+    gap = (ext[np.clip(k, 0, len(ext) - 1)] - ext[np.clip(k - 1, 0, len(ext) - 1)]) > 3.5 * step
+    return np.where(gap, np.nan, r), drdphi
+
+
+def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, n_bins=360):
+    """Errors of extracted laser pixels against the true ring.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (N, 2)
+        Extracted ``(u, v)``, px (same pixel convention as the renderer: integer at centres).
+    truth : renderer2.Truth2
+    center : array_like, shape (2,), optional
+        The point the ring is parametrised about; the principal point by default.
+    flagged : array_like of bool, shape (N,), optional
+        Points the extractor flagged; they are left out of every number.
+    gross_px : float
+        A point with ``|error| > gross_px`` (or at an angle where no ring is visible) is gross.
+    n_bins : int
+        Azimuth bins for ``kept``.
+
+    Returns
+    -------
+    dict
+        ``n`` points scored; ``kept``: fraction of the azimuth bins holding visible ring that
+        hold at least one point; ``bias``: mean error of the non-gross points (px);
+        ``median``; ``robust_sd``: 1.4826 MAD of the errors of all points on the ring;
+        ``gross``: fraction of gross points; ``rms`` of the non-gross errors;
+        ``errors`` (n,) with NaN where no ring is visible.
+    """
+    pixels = np.asarray(pixels, float).reshape(-1, 2)
+    if flagged is not None:
+        pixels = pixels[~np.asarray(flagged, bool)]
+    center = truth.center if center is None else np.asarray(center, float)
+    nan = float("nan")
+    if not truth.ring or not np.any(truth.visible):
+        return dict(n=len(pixels), kept=nan, bias=nan, median=nan, robust_sd=nan,
+                    gross=1.0 if len(pixels) else 0.0, rms=nan, errors=np.full(len(pixels), nan))
+    phi_t, r_t = _ring_polar(truth, center)
+    phi = np.arctan2(pixels[:, 1] - center[1], pixels[:, 0] - center[0])
+    r = np.hypot(pixels[:, 0] - center[0], pixels[:, 1] - center[1])
+    rt, drt = _ring_radius(phi_t, r_t, phi)
+    err = (r - rt) * np.cos(np.arctan2(drt, rt))
+    on = np.isfinite(err)
+    good = on & (np.abs(err) <= gross_px)
+    edges = np.linspace(-np.pi, np.pi, n_bins + 1)
+    ring_bins = np.unique(np.clip(np.digitize(phi_t, edges) - 1, 0, n_bins - 1))
+    got = np.unique(np.clip(np.digitize(phi[on], edges) - 1, 0, n_bins - 1))
+    med = float(np.median(err[on])) if np.any(on) else nan
+    return dict(
+        n=len(pixels),
+        kept=float(np.isin(ring_bins, got).mean()),
+        bias=float(np.mean(err[good])) if np.any(good) else nan,
+        median=med,
+        robust_sd=float(1.4826 * np.median(np.abs(err[on] - med))) if np.any(on) else nan,
+        gross=float(np.mean(~good)) if len(pixels) else 0.0,
+        rms=float(np.sqrt(np.mean(err[good] ** 2))) if np.any(good) else nan,
+        errors=err,
+    )
