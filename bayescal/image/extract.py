@@ -9,6 +9,7 @@ accuracy are in ``docs/images.md``.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +19,7 @@ from .doubt import blob_mask, check_ring, mirror_disc
 from .noise import noise_model
 from .peak import fit_peaks
 from .read import as_gray, read_image
-from .ring import circle_fit, polar_image, ring_path
+from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES"]
 
@@ -125,7 +126,8 @@ def _score_without_blobs(pol, blobs):
     return on
 
 
-def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False):
+def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False,
+            prior=None):
     """Polar image around ``c``, the ring's path in it (radius index per azimuth), its
     closure, the blob mask in polar coordinates, and the path's gain and (``runner_up``)
     that of the best closed path 8 px or more off it."""
@@ -134,6 +136,10 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
     if r_band is not None:
         pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
     on_blob = _score_without_blobs(pol, blobs)
+    if prior is not None:
+        # the ring is nearly a circle about ``c``: a cost for straying far from it
+        far = np.maximum(np.abs(pol.radii - prior) - max(5.0, 0.08 * prior), 0.0)
+        pol.score = pol.score - far[None, :]
     path, closure, gain = ring_path(pol.score)
     gains = (gain, np.nan)
     if runner_up:
@@ -141,27 +147,25 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
         gains = (gain, ring_path(off)[2])
     # the highest ridge sample within 2 px of the path (the path moves in whole steps)
-    K = len(pol.radii)
+    K, i = len(pol.radii), np.arange(n)
     cand = np.clip(path[:, None] + np.arange(-2, 3)[None], 2, K - 3)
-    best = cand[np.arange(n), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    best = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
+    # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
+    z = pol.score[i, path]
+    model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
+    stray = np.abs(pol.radii[best] - model) > 2.0
+    if np.any(stray):
+        k0 = np.clip(np.rint(model - pol.radii[0]).astype(int), 2, K - 3)
+        cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
+        near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+        best = np.where(stray, near, best)
+    pol.model = model
     return pol, best, closure, on_blob, gains
 
 
-def _ring_center(pol, k, min_snr):
-    """Robust circle through the path's confident points: centre, radius (NaN if too few)."""
-    i = np.arange(len(k))
-    z = pol.score[i, k]
-    ok = z > min_snr
-    if np.count_nonzero(ok) < 12:
-        return None, np.nan
-    r = pol.radii[k]
-    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
-    c, R, _ = circle_fit(pts[ok])
-    return c, R
-
-
 def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=None,
-                  min_snr=4.0, gate_px=2.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
+                  min_snr=4.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
                   highpass_px=15, check=True):
     """Extract the laser centre line, one sub-pixel point per image azimuth.
 
@@ -234,32 +238,42 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         radius = tuple(float(x) for x in np.ravel(radius))
         if len(radius) != 2 or not 0 <= radius[0] < radius[1]:
             raise ValueError(f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
+    pol, k, on_blob, closure, gains, mirror = _find_ring(
+        sig, raw, sat, center, radius, n_azimuth=n_azimuth, highpass_px=highpass_px,
+        runner_up=check)
+    lp, _ = _points(sig, var_img, pol, k, on_blob, min_snr=min_snr, gate_px=gate_px,
+                    along_sd=along_sd, var_floor=var_floor)
+    if check:
+        ok = ~lp.flagged
+        cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (pol.center, np.nan, None)
+        check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=closure,
+                   gains=gains)
+    return lp
+
+
+def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_up):
+    """Two passes: 360 profiles over every radius from the mirror's centre (the runner-up's
+    gain, the ring's circle), then the final profiles about the ring's centre, in a band
+    about its radius, with a cost for straying from that circle."""
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf)
     c, r_max, mirror = _start(sig, raw, sat, center, radius)
     pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
-                                        r_band=radius, runner_up=check)
-    c1, R1 = _ring_center(pol, k, min_snr)
-    if center is None and c1 is not None and np.hypot(*(c1 - c)) < 0.5 * R1:
-        c = c1
-    R = R1 if np.isfinite(R1) else 100.0
-    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 90, 3600))
+                                        r_band=radius, runner_up=runner_up)
+    prior = ring_prior(pol)
+    if prior is not None and np.hypot(*(prior[0] - c)) < 0.5 * prior[1]:
+        c = c if center is not None else prior[0]
+        R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
+    else:
+        prior, R = None, 100.0
+    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
     band = radius
-    if np.isfinite(R1):
-        r = pol.radii[k]
-        lo, hi = np.quantile(r, [0.05, 0.95])
-        band = (max(lo - 0.25 * R1, 0.0), hi + 0.25 * R1)
+    if prior is not None:
+        band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
         band = band if radius is None else (max(band[0], radius[0]), min(band[1], radius[1]))
     r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
     pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
-                                       r_band=band)
-    lp, _ = _points(sig, var_img, pol, k, on_blob, min_snr=min_snr, gate_px=gate_px,
-                        along_sd=along_sd, var_floor=var_floor)
-    if check:
-        ok = ~lp.flagged
-        cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (c, np.nan, None)
-        check_ring(lp.flagged, cc, RR, mirror=mirror if center is None else None,
-                   expected=radius, closure=closure, gains=gains)
-    return lp
+                                          r_band=band, prior=None if center is not None else R)
+    return pol, k, on_blob, closure, gains, mirror
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor):
@@ -268,8 +282,8 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     i = np.arange(n)
     offs = np.arange(-2, 3)
     base = pol.base[i[:, None], k[:, None] + offs[None]]
-    r, var_r, height, snr, chi2, width = fit_peaks(sig, var_img, pol.center, pol.phi,
-                                                    pol.radii[k], base, sub=pol.sub)
+    r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
+                                                         pol.radii[k], base, sub=pol.sub)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
     # the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that matches
     good = np.isfinite(chi2)
@@ -277,9 +291,11 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     var_r = np.maximum(scale, np.nan_to_num(chi2, nan=scale)) * var_r + var_floor
     win = max(5, n // 36) | 1
     r_s = median_filter(r, size=win, mode="wrap")
+    var_r = var_r * _scatter_factor(r - r_s, var_r, 3 * win)
     h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
     w_s = median_filter(width, size=win, mode="wrap")
-    gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 5 * np.sqrt(var_r)),
+    gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
+             "off model": np.abs(r - pol.model) > np.maximum(2 * gate_px, 5 * np.sqrt(var_r)),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 2 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
@@ -289,6 +305,20 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
     return lp, gates
+
+
+def _scatter_factor(d, var, win):
+    """Factor (>= 1) on the variances where the points scatter about the smoothed ring more
+    than their variances say (texture under the stripe, a misfit the noise model misses):
+    the running median of ``d^2 / var`` over ``win`` azimuths over 0.455, the median of a
+    chi-square with 1 degree of freedom."""
+    q = np.where(np.abs(d) < 3.0, d ** 2 / var, np.nan)
+    n, h = len(q), win // 2
+    idx = (np.arange(n)[:, None] + np.arange(-h, h + 1)[None]) % n
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(q[idx], axis=1)
+    return np.maximum(1.0, np.nan_to_num(med, nan=1.0) / 0.455)
 
 
 #: file suffixes read as images (a reconstruction frame given as an image is extracted)

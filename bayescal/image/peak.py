@@ -57,6 +57,8 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     r, var, height, snr, chi2, width : ndarray, shape (N,)
         Peak radius (px), its variance (px^2), height above the baseline (grey levels),
         height over the noise sd, misfit per degree of freedom (2), Gaussian sd (px).
+    dmu_ds : ndarray, shape (N, 5)
+        Derivative of the peak radius with respect to each sample, px per grey level.
     """
     radii = (r_pk[:, None] + _OFFS[None, :])[..., None]
     ang = phi[:, None, None] + np.asarray(sub, float)[None, None, :]
@@ -74,10 +76,11 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     b, c = coef[:, 1, 0], np.minimum(coef[:, 2, 0], -1e-3)
     mu = np.clip(-b / (2 * c), -2.0, 2.0)
     dmu_dy = -Q[:, 1] / (2 * c[:, None]) + b[:, None] * Q[:, 2] / (2 * c[:, None] ** 2)
-    var = _pixel_variance(dmu_dy / s, idx, wts, var_img)
+    dmu_ds = dmu_dy / s
+    var = _pixel_variance(dmu_ds, idx, wts, var_img)
     resid = (np.log(s) - (X[None] @ coef)[..., 0]) * s
     sd_s = np.sqrt(np.sum(wts ** 2 * var_img[idx[..., 0], idx[..., 1]], axis=-1))
     chi2 = np.sum((resid / sd_s) ** 2, axis=1) / 2.0
     height = vals[:, 2] - base[:, 2]
     snr = height / sd_s[:, 2]
-    return r_pk + mu, var, height, snr, chi2, np.sqrt(-0.5 / c)
+    return r_pk + mu, var, height, snr, chi2, np.sqrt(-0.5 / c), dmu_ds

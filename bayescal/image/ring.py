@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit"]
+__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_prior"]
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -164,3 +164,68 @@ def circle_fit(points, weights=None, *, iters=8):
         w = w0 / np.maximum(1.0, np.abs(res) / (2.5 * s))
         w[np.abs(res) > 6 * s] = 0.0
     return c, R, res
+
+
+def _fourier(phi, order):
+    cols = [np.ones_like(phi)]
+    for m in range(1, order + 1):
+        cols += [np.cos(m * phi), np.sin(m * phi)]
+    return np.stack(cols, axis=1)
+
+
+def ring_model(phi, r, weights, *, order=4, keep=0.8, iters=8):
+    """A robust Fourier series ``r(phi)`` through a ring's radii (px), so that a sector where
+    the path followed something else (a rail or a poster's edge crossing the ring) does
+    not bend it: a least-absolute-deviations fit of order 2 (an ellipse, stiff) starts
+    trimmed least squares of order ``order`` on the ``keep`` fraction of the points nearest
+    the curve.
+
+    Returns the model's radius at ``phi`` (n,) and the robust sd of the residuals (px).
+    """
+    w0 = np.asarray(weights, float)
+    if np.count_nonzero(w0 > 0) <= 2 * order + 1:
+        return np.full(len(phi), np.median(r)), np.inf
+    A2, A = _fourier(phi, 2), _fourier(phi, order)
+    w = w0.copy()
+    for _ in range(iters):                          # IRLS for the L1 fit (weights are sqrt)
+        coef = np.linalg.lstsq(A2 * w[:, None], r * w, rcond=None)[0]
+        res = r - A2 @ coef
+        w = w0 / np.sqrt(np.maximum(np.abs(res), 0.05))
+    for _ in range(iters):                          # C-steps of trimmed least squares
+        use = w0 > 0
+        cut = np.quantile(np.abs(res[use]), keep)
+        w = w0 * (np.abs(res) <= cut)
+        coef = np.linalg.lstsq(A * w[:, None], r * w, rcond=None)[0]
+        res = r - A @ coef
+    sd = 1.4826 * float(np.median(np.abs(res[w0 > 0])))
+    return A @ coef, sd
+
+
+def ring_prior(pol, *, z_min=4.0, cap=8.0):
+    """Where the ring is, before any path: a circle through the strong ridge samples near
+    the radius that most azimuths share (centre (2,), radius px), or None.
+
+    A laser ring is nearly a circle (its elevation changes little with the wall's distance,
+    as the laser sits close to the mirror), while rails and texture edges on the walls
+    undulate more; a circle found this way keeps the path from following one of those
+    for a sector where it outshines the laser.
+    """
+    sc = pol.score
+    peak = (sc > z_min) & (sc >= np.roll(sc, 1, axis=1)) & (sc >= np.roll(sc, -1, axis=1))
+    ii, kk = np.nonzero(peak)
+    if len(ii) < 12:
+        return None
+    w = np.minimum(sc[ii, kk], cap)
+    hist = np.convolve(np.bincount(kk, weights=w, minlength=len(pol.radii)), np.ones(7), "same")
+    R0 = pol.radii[int(np.argmax(hist))]
+    r = pol.radii[kk]
+    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi[ii]), np.sin(pol.phi[ii])], -1)
+    near = np.abs(r - R0) <= max(8.0, 0.1 * R0)
+    for _ in range(2):
+        if np.count_nonzero(near) < 12:
+            return None
+        c, R, _ = circle_fit(pts[near], w[near])
+        if not np.isfinite(R):
+            return None
+        near = np.abs(np.hypot(*(pts - c).T) - R) <= max(5.0, 0.06 * R)
+    return c, R
