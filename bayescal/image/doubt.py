@@ -18,10 +18,9 @@ from .ring import circle_fit
 
 __all__ = ["mirror_disc", "blob_mask", "check_ring", "ADVICE"]
 
-#: what to try when an extraction is implausible (the command line's option names)
-ADVICE = ("Try a laser-off image of the same view (--background / background=), the centre of "
-          "the mirror's image (--center U V / center=), or the colour channel of the laser "
-          "(--channel / channel=)")
+#: what to try when an extraction is implausible (the command line says it with its options)
+ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
+          "image (center=(u, v)), or the laser's colour channel (channel=...)")
 
 
 def mirror_disc(raw):

@@ -295,7 +295,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
     w_s = median_filter(width, size=win, mode="wrap")
     gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
-             "off model": np.abs(r - pol.model) > np.maximum(2 * gate_px, 5 * np.sqrt(var_r)),
+             "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * np.sqrt(var_r)),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 2 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}

@@ -173,7 +173,7 @@ def _fourier(phi, order):
     return np.stack(cols, axis=1)
 
 
-def ring_model(phi, r, weights, *, order=4, keep=0.8, iters=8):
+def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
     """A robust Fourier series ``r(phi)`` through a ring's radii (px), so that a sector where
     the path followed something else (a rail or a poster's edge crossing the ring) does
     not bend it: a least-absolute-deviations fit of order 2 (an ellipse, stiff) starts
