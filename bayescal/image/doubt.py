@@ -16,7 +16,7 @@ from scipy.ndimage import (
 from ..errors import ExtractionError
 from .ring import circle_fit
 
-__all__ = ["mirror_disc", "blob_mask", "check_ring", "ADVICE"]
+__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "ADVICE"]
 
 #: what to try when an extraction is implausible (the command line says it with its options)
 ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
@@ -49,6 +49,21 @@ def mirror_disc(raw):
     if not np.all(np.isfinite(c)) or np.median(np.abs(res)) > 0.05 * R:
         return None
     return c, R
+
+
+def dark_core(raw, center, radius):
+    """Radius (px) of the dark disc at the centre of the mirror's image (the camera's own
+    reflection), 0 if there is none: where the median over azimuth of the grey level first
+    rises a quarter of the way from the darkest to the typical lit level."""
+    phi = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    r = np.arange(0.0, 0.8 * radius)
+    u = np.clip(center[0] + np.cos(phi)[:, None] * r, 0, raw.shape[1] - 1)
+    v = np.clip(center[1] + np.sin(phi)[:, None] * r, 0, raw.shape[0] - 1)
+    prof = np.median(raw[np.rint(v).astype(int), np.rint(u).astype(int)], axis=0)
+    lo, hi = np.min(prof), np.median(prof)
+    if not hi > lo or prof[0] > lo + 0.25 * (hi - lo):
+        return 0.0
+    return float(r[int(np.argmax(prof > lo + 0.25 * (hi - lo)))])
 
 
 def blob_mask(raw, *, top=None, radius=2, margin=3):

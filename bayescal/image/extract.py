@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-from .doubt import blob_mask, check_ring, mirror_disc
+from .doubt import blob_mask, check_ring, dark_core, mirror_disc
 from .noise import noise_model
 from .peak import fit_peaks
 from .read import as_gray, read_image
@@ -109,11 +109,17 @@ def _start(sig, raw, sat, center, radius):
         c = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
     corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
     r_max = float(np.max(np.hypot(*(corners - c).T)))
+    band = radius
     if mirror is not None:
         r_max = min(r_max, mirror[1] + 4.0)
+        # the ring lies outside the camera's own dark reflection (its edge is a circle too)
+        core = dark_core(raw, mirror[0], mirror[1])
+        if core > 0:
+            band = (core + 4.0, r_max) if radius is None else (max(radius[0], core + 4.0),
+                                                               radius[1])
     if radius is not None:
         r_max = min(r_max, float(radius[1]) + 8.0)
-    return c, r_max, mirror
+    return c, r_max, mirror, band
 
 
 def _score_without_blobs(pol, blobs):
@@ -256,9 +262,9 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     gain, the ring's circle), then the final profiles about the ring's centre, in a band
     about its radius, with a cost for straying from that circle."""
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf)
-    c, r_max, mirror = _start(sig, raw, sat, center, radius)
+    c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius)
     pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
-                                        r_band=radius, runner_up=runner_up)
+                                        r_band=band0, runner_up=runner_up)
     prior = ring_prior(pol)
     if prior is not None and np.hypot(*(prior[0] - c)) < 0.5 * prior[1]:
         c = c if center is not None else prior[0]
@@ -266,10 +272,10 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     else:
         prior, R = None, 100.0
     n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
-    band = radius
+    band = band0
     if prior is not None:
         band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
-        band = band if radius is None else (max(band[0], radius[0]), min(band[1], radius[1]))
+        band = band if band0 is None else (max(band[0], band0[0]), min(band[1], band0[1]))
     r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
     pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
                                           r_band=band, prior=None if center is not None else R)
@@ -292,6 +298,9 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     win = max(5, n // 36) | 1
     r_s = median_filter(r, size=win, mode="wrap")
     var_r = var_r * _scatter_factor(r - r_s, var_r, 3 * win)
+    # profiles closer than 2 px share pixels: their errors correlate, so each counts for
+    # less (the ring's information per px of its length stays that of 2-px spacing)
+    var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
     h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
     w_s = median_filter(width, size=win, mode="wrap")
     gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
