@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import (
+    binary_closing,
     binary_dilation,
     binary_erosion,
     binary_fill_holes,
@@ -32,7 +33,8 @@ def mirror_disc(raw):
     lo, hi = np.quantile(small, [0.02, 0.9])
     if not hi > lo:
         return None
-    lit = binary_fill_holes(small > lo + 0.25 * (hi - lo))
+    # a low threshold and a closing: dark texture at the rim must not bite into the disc
+    lit = binary_fill_holes(binary_closing(small > lo + 0.1 * (hi - lo), iterations=3))
     lab, n = label(lit)
     if n == 0:
         return None
@@ -53,8 +55,8 @@ def mirror_disc(raw):
 
 def dark_core(raw, center, radius):
     """Radius (px) of the dark disc at the centre of the mirror's image (the camera's own
-    reflection), 0 if there is none: where the median over azimuth of the grey level first
-    rises a quarter of the way from the darkest to the typical lit level."""
+    reflection), 0 if there is none (a lit centre): where the median over azimuth of the grey
+    level first rises three quarters of the way from the darkest to the typical lit level."""
     phi = np.linspace(-np.pi, np.pi, 90, endpoint=False)
     r = np.arange(0.0, 0.8 * radius)
     u = np.clip(center[0] + np.cos(phi)[:, None] * r, 0, raw.shape[1] - 1)
@@ -63,7 +65,7 @@ def dark_core(raw, center, radius):
     lo, hi = np.min(prof), np.median(prof)
     if not hi > lo or prof[0] > lo + 0.25 * (hi - lo):
         return 0.0
-    return float(r[int(np.argmax(prof > lo + 0.25 * (hi - lo)))])
+    return float(r[int(np.argmax(prof > lo + 0.75 * (hi - lo)))])
 
 
 def blob_mask(raw, *, top=None, radius=2, margin=3):
@@ -128,7 +130,7 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
     if mirror is not None:
         mc, mr = mirror
         off = float(np.hypot(*(np.asarray(center) - mc)))
-        if off > 0.25 * mr or radius > mr:
+        if off > 0.25 * mr or radius > 0.92 * mr:
             raise ExtractionError(
                 f"the ring found (centre ({center[0]:.0f}, {center[1]:.0f}), radius "
                 f"{radius:.0f} px) is far from the mirror's image (centre ({mc[0]:.0f}, "

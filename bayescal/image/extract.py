@@ -97,7 +97,7 @@ def _saturation(image, gray):
     return float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(gray.max())
 
 
-def _start(sig, raw, sat, center, radius):
+def _start(sig, raw, sat, center, radius, highpass_px):
     """Centre of the first profiles, the search's outer radius and the mirror's disc."""
     mirror = mirror_disc(raw)
     H, W = raw.shape
@@ -110,13 +110,13 @@ def _start(sig, raw, sat, center, radius):
     corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
     r_max = float(np.max(np.hypot(*(corners - c).T)))
     band = radius
-    if mirror is not None:
-        r_max = min(r_max, mirror[1] + 4.0)
-        # the ring lies outside the camera's own dark reflection (its edge is a circle too)
-        core = dark_core(raw, mirror[0], mirror[1])
-        if core > 0:
-            band = (core + 4.0, r_max) if radius is None else (max(radius[0], core + 4.0),
-                                                               radius[1])
+    if mirror is not None:          # the mirror's rim is a circle too: stay inside it
+        r_max = min(r_max, mirror[1] - max(8.0, 0.05 * mirror[1]))
+    # the ring lies outside the camera's own dark reflection (its edge is a circle too)
+    core = dark_core(raw, c, mirror[1] if mirror is not None else 0.5 * min(H, W))
+    if core > 0:                    # past the high-pass's reach from its edge
+        lo = core + 0.5 * highpass_px + 2.0
+        band = (lo, r_max) if radius is None else (max(radius[0], lo), radius[1])
     if radius is not None:
         r_max = min(r_max, float(radius[1]) + 8.0)
     return c, r_max, mirror, band
@@ -262,7 +262,7 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     gain, the ring's circle), then the final profiles about the ring's centre, in a band
     about its radius, with a cost for straying from that circle."""
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf)
-    c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius)
+    c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
     pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
                                         r_band=band0, runner_up=runner_up)
     prior = ring_prior(pol)

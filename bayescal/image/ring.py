@@ -90,7 +90,9 @@ def _local_sd(x, valid, *, block=(8, 32)):
 def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
     """The :class:`PolarImage` of ``img`` around ``center`` from ``r_min`` (an integer
     offset from :data:`R_MIN`) out to ``r_max`` px."""
-    phi = np.linspace(-np.pi, np.pi, int(n_azimuth), endpoint=False)
+    # mid-step azimuths: one profile in the middle of each of n equal sectors (of each
+    # degree for n = 360)
+    phi = np.linspace(-np.pi, np.pi, int(n_azimuth), endpoint=False) + np.pi / int(n_azimuth)
     r0 = R_MIN + max(0.0, np.floor(r_min - R_MIN))
     radii = np.arange(r0, max(float(r_max), r0 + 8.0))
     return PolarImage(img, center, phi, radii, highpass_px)
