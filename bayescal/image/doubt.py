@@ -106,15 +106,17 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
         Mean ridge score per azimuth of the ring's path and of the best closed path off it
         (:func:`~bayescal.image.ring.ring_path`); NaN skips the test.
     min_margin : float
-        Smallest lead of the ring over that runner-up, noise sds per azimuth: on wall
-        texture alone the best two closed paths score alike.
+        Smallest lead of the ring over that runner-up, noise sds per azimuth, when more
+        than 20 % of the ring is flagged: on wall texture alone the best two closed paths
+        score alike.
     """
     n = len(flagged)
     kept = int(np.count_nonzero(~flagged))
     if n == 0 or kept < 12:
         raise ExtractionError(f"no laser ring found: {kept} of {n} azimuths hold a point the "
                               "extractor trusts", ADVICE)
-    if gains[0] - gains[1] < min_margin:
+    # a clear ring (few points flagged) stands on its own, whatever the texture's best
+    if gains[0] - gains[1] < min_margin and n - kept > 0.2 * n:
         raise ExtractionError(f"no ring stands out of the image: the best closed ridge scores "
                               f"{gains[0]:.1f} noise sds per azimuth, the best other one "
                               f"{gains[1]:.1f} (a laser ring leads by {min_margin:g} or more); "
