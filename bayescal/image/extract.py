@@ -354,10 +354,12 @@ def laser_frame(path, *, center=None):
     UsageError
         Unreadable image, or no laser pixel the extractor trusts.
     """
-    from ..errors import UsageError
+    from ..errors import ExtractionError, UsageError
 
     try:
         lp = extract_laser(read_image(path), center=center)
+    except ExtractionError as exc:          # the reason only: the advice names Python's arguments
+        raise UsageError(f"{path}: cannot extract laser pixels ({exc.reason})") from None
     except (OSError, ValueError) as exc:
         raise UsageError(f"{path}: cannot extract laser pixels ({exc})") from None
     keep = ~np.asarray(lp.flagged, bool)
