@@ -8,6 +8,17 @@ for the truth), so the true ring is the geometry's, not a by-product of the rend
 Pixel convention: ``image[v, u]`` is the pixel whose centre is at ``(u, v)`` (integer
 coordinates at pixel centres); the truth pixels use the same convention.
 
+Use (tests in ``tests/image`` import it as ``renderer2``; from other test folders,
+``from image.renderer2 import render_scenario``, ``from image.score import score_extraction``)::
+
+    image, off, truth = render_scenario("textured_2500", rng=0)   # or render2(params, ...)
+    s = score_extraction(extracted_pixels, truth, flagged=flags)  # kept, bias, robust_sd, gross
+
+Scenarios (:data:`SCENARIOS`): textured_2500, faint_4000_off, lamps, red_colour, red_bayer,
+cam1280, no_ring, tilted, near_1200, clean_2500 (no texture, lamps or noise). ``truth`` is a
+:class:`Truth2`: per azimuth sample (720 by default) the 3-D point, its pixel, a visibility
+mask, the ring's normal, the rendered peak; ``truth.center`` is the principal point.
+
 How an image is made, for each pixel whose ray reaches the mirror:
 - the ray (``bc.backproject``) meets a vertical wall of the polygonal room, the floor or the
   ceiling; the hit point's material gives an RGB albedo (value noise at four scales, wood
@@ -57,7 +68,8 @@ class Truth2:
     pixels : (n, 2) px, ``bc.project(params, points)``; NaN where not imaged.
     visible : (n,) bool, the ring is drawn there and imaged inside the mirror and the image.
     normal : (n, 2) unit image normal of the ring, pointing away from ``center``.
-    near_lamp : (n,) bool, a lamp or glint covers the ring there (within 2 px).
+    near_lamp : (n,) bool, a lamp or glint alone nearly saturates the ring there (> 200 grey
+        levels within 2 px).
     peak : (n,) rendered laser peak over the background, in 8-bit grey levels (no noise).
     """
 
@@ -143,7 +155,7 @@ class _Noise2:
 
     def octaves(self, x, y, scales, amps):
         return sum(a * (self(x / s + 31.7 * k, y / s - 17.3 * k) - 0.5)
-                   for k, (s, a) in enumerate(zip(scales, amps)))
+                   for k, (s, a) in enumerate(zip(scales, amps, strict=True)))
 
 
 def _plaster(n, a, z, base):
@@ -257,7 +269,7 @@ def make_scene(rng, walls, ring_z, floor_z, *, texture=None):
 
 def make_lamps(rng, params, walls, laser_pose, floor_z, ceil_z, *, on_ring=2, off_ring=2,
                glints_on=3, glints_off=3, ceiling=2):
-    """Lamps (radius 40-90 mm, saturating) and glints (radius 6-12 mm) as dicts with ``pos``
+    """Lamps (radius 40-90 mm, saturating) and glints (radius 15-30 mm) as dicts with ``pos``
     (3,) mm, ``radius`` mm, ``level`` grey levels, ``pool`` (lights the walls around it)."""
     lamps = []
 
@@ -274,8 +286,8 @@ def make_lamps(rng, params, walls, laser_pose, floor_z, ceil_z, *, on_ring=2, of
                           level=rng.uniform(900, 3000), pool=0.35))
     for k in range(glints_on + glints_off):
         dz = rng.uniform(-15, 15) if k < glints_on else rng.uniform(-400, 400)
-        lamps.append(dict(pos=wall_point(dz), radius=rng.uniform(6, 12),
-                          level=rng.uniform(400, 1500), pool=0.0))
+        lamps.append(dict(pos=wall_point(dz), radius=rng.uniform(15, 30),
+                          level=rng.uniform(1500, 4000), pool=0.0))
     for _ in range(ceiling):
         r = rng.uniform(300, 900)
         az = rng.uniform(-np.pi, np.pi)
@@ -284,20 +296,23 @@ def make_lamps(rng, params, walls, laser_pose, floor_z, ceil_z, *, on_ring=2, of
     return lamps
 
 
-def _lamp_light(rays, P, lamps, flicker):
-    """Emitted light along each ray (n,) and the pool light on each hit point (n,)."""
-    emit = np.zeros(len(rays))
-    pool = np.zeros(len(rays))
-    for lamp, f in zip(lamps, flicker):
+def _lamp_light(rays, P, lamps):
+    """Per lamp: light emitted along each ray and pool light on each hit point, (L, n) each
+    (a frame weights them by its flicker)."""
+    emit = np.zeros((len(lamps), len(rays)))
+    pool = np.zeros((len(lamps), len(rays)))
+    for k, lamp in enumerate(lamps):
         c = lamp["pos"]
         dist = np.linalg.norm(c)
-        ang = np.arccos(np.clip(rays @ (c / dist), -1, 1))
         r = lamp["radius"] / dist
+        cosang = rays @ (c / dist)
+        near = cosang > np.cos(min(40 * r, np.pi))
+        ang = np.arccos(np.clip(cosang[near], -1, 1))
         core = np.clip((r - ang) / (0.15 * r) + 0.5, 0, 1)
         halo = 0.12 * np.exp(-np.maximum(ang - r, 0) / (1.5 * r))
-        emit += f * lamp["level"] * (core + halo)
+        emit[k, near] = lamp["level"] * (core + halo)
         if lamp["pool"]:
-            pool += f * lamp["pool"] / (1 + np.sum((P - c) ** 2, axis=1) / 700.0 ** 2)
+            pool[k] = lamp["pool"] / (1 + np.sum((P - c) ** 2, axis=1) / 700.0 ** 2)
     return emit, pool
 
 
@@ -418,11 +433,33 @@ def _vignetting(uv, image_size, frac, vig):
     return (1.0 / (1.0 + k * r2) ** 2) * (1.0 - vig["rim"] * np.clip(frac, 0, 1) ** 2)
 
 
+HOUSING = 14.0
+
+
+def _mirror_box(params, image_size, mirror):
+    """Flat indices of the pixels in the box around the mirror's image (its rim ring at the
+    top elevation plus 8 deg, projected at 360 azimuths, plus 3 px); the whole image if that
+    ring is not imaged everywhere."""
+    W, H = image_size
+    az = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    el = np.radians(min(mirror[1] + 8.0, 89.0))
+    ring = np.stack([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el),
+                     np.full_like(az, np.sin(el))], axis=1)
+    pix = bc.project(params, ring)
+    if not np.all(np.isfinite(pix)):
+        lo, hi = (0, 0), (W - 1, H - 1)
+    else:
+        lo = np.maximum(np.floor(pix.min(axis=0)) - 3, 0).astype(int)
+        hi = np.minimum(np.ceil(pix.max(axis=0)) + 3, [W - 1, H - 1]).astype(int)
+    vv, uu = np.mgrid[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+    return (vv * W + uu).ravel()
+
+
 def _housing(uv, elev, ok, mirror, center):
     """Grey levels outside the mirror: dark housing, a bright metal rim, the camera's own dark
     reflection at the centre."""
     ang = np.arctan2(uv[:, 1] - center[1], uv[:, 0] - center[0])
-    out = np.full(len(uv), 14.0)
+    out = np.full(len(uv), HOUSING)
     rim = ok & (elev >= mirror[1]) & (elev < mirror[1] + 5.0)
     out[rim] = 95.0 * (0.75 + 0.25 * np.cos(3 * ang[rim]))
     hole = ok & (elev <= mirror[0])
@@ -438,7 +475,7 @@ def _demosaic(raw):
     k_rb = np.array([[1, 2, 1], [2, 4, 2], [1, 2, 1]]) / 4.0
     k_g = np.array([[0, 1, 0], [1, 4, 1], [0, 1, 0]]) / 4.0
     return np.stack([ndimage.convolve(raw * m, k, mode="mirror")
-                     for m, k in zip(masks, (k_rb, k_g, k_rb))], axis=-1)
+                     for m, k in zip(masks, (k_rb, k_g, k_rb), strict=True)], axis=-1)
 
 
 def _sensor(img, rng, cfg, fixed):
@@ -541,18 +578,19 @@ def render2(params, *, range_mm, image_size=(800, 600), laser_pose=None, walls=N
                            ctx["ceil_z"], **lamps)
     lamps = list(lamps or [])
     W, H = image_size
-    vv, uu = np.mgrid[0:H, 0:W]
-    uv = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
+    flat = _mirror_box(params, image_size, mirror)
+    uv = np.stack([flat % W, flat // W], axis=1).astype(float)
     rays, ok = bc.backproject(params, uv, return_valid=True)
     elev = np.full(len(uv), np.nan)
     elev[ok] = np.degrees(np.arcsin(np.clip(rays[ok, 2], -1, 1)))
     inside = ok & (elev > mirror[0]) & (elev < mirror[1])
-    idx = np.flatnonzero(inside)
-    r_in = rays[idx]
+    idx = flat[inside]
+    r_in = rays[inside]
+    uv_in = uv[inside]
     P, kind, j, albedo, ambient, alb_c = _surfaces(r_in, ctx, scene, colour, rng)
     las = np.zeros(len(idx))
     if laser:
-        las = _laser_layer(r_in, P, kind, j, uv[idx], ctx)
+        las = _laser_layer(r_in, P, kind, j, uv_in, ctx)
         g = _ripple(rng, beam["azimuth_ripple"])
         las *= g(np.arctan2(P[:, 1] - ctx["apex"][1], P[:, 0] - ctx["apex"][0]))
         s = beam["albedo"]
@@ -560,10 +598,11 @@ def render2(params, *, range_mm, image_size=(800, 600), laser_pose=None, walls=N
         if beam["speckle"] > 0:
             m = 1.0 / beam["speckle"] ** 2
             las *= rng.gamma(m, 1.0 / m, len(las))
-    frac = (elev[idx] - mirror[0]) / (mirror[1] - mirror[0])
-    V = _vignetting(uv[idx], image_size, frac, vig)
+    frac = (elev[inside] - mirror[0]) / (mirror[1] - mirror[0])
+    V = _vignetting(uv_in, image_size, frac, vig)
     center = np.array([params.u0, params.v0])
-    house = _housing(uv, elev, ok, mirror, center)
+    house = np.full(H * W, HOUSING)
+    house[flat] = _housing(uv, elev, ok, mirror, center)
     C = 1 if colour is None else 3
     mix = LUMA[None] if colour is None else np.eye(3)
     chan = np.ones(1) if colour is None else LASER_CHANNELS[colour]
@@ -571,8 +610,10 @@ def render2(params, *, range_mm, image_size=(800, 600), laser_pose=None, walls=N
     fl = np.broadcast_to(fl, (2, len(lamps)))
     psf = NOISE["psf"] if ncfg is None else ncfg["psf"]
 
+    emit_l, pool_l = _lamp_light(r_in, P, lamps)
+
     def frame(flicker, laser_on, exposure):
-        emit, pool = _lamp_light(r_in, P, lamps, flicker)
+        emit, pool = flicker @ emit_l, flicker @ pool_l
         rgb = scene_level * albedo * (ambient + pool)[:, None] + emit[:, None] * LAMP_RGB
         val = rgb @ mix.T + (las[:, None] * chan if laser_on else 0.0)
         img = np.repeat(house[:, None], C, axis=1)
@@ -606,7 +647,7 @@ def _truth(ctx, image_size, mirror, laser, colour, layers, img_f, ncfg):
     ui = np.clip(np.round(np.nan_to_num(pix_t[:, 0])).astype(int), 0, W - 1)
     vi = np.clip(np.round(np.nan_to_num(pix_t[:, 1])).astype(int), 0, H - 1)
     lamp_mask = np.zeros(H * W, bool)
-    lamp_mask[idx] = V * emit > 60.0
+    lamp_mask[idx] = V * emit > 200.0
     lamp_mask = ndimage.binary_dilation(lamp_mask.reshape(H, W), iterations=2)
     las_img = np.zeros(H * W)
     las_img[idx] = V * las
@@ -622,3 +663,59 @@ def _truth(ctx, image_size, mirror, laser, colour, layers, img_f, ncfg):
                   laser_pose=ctx["pose"], walls=ctx["walls"], image_size=tuple(image_size),
                   ring=bool(laser), colour=colour, noise_sd=sd,
                   info=dict(floor_z=ctx["floor_z"], ceil_z=ctx["ceil_z"], mirror=mirror))
+
+
+# -- scenarios ----------------------------------------------------------------------------------
+
+def camera_1280():
+    """A 1280x1024 paracatadioptric camera like the real one measured on chessboards
+    (xi 1.134, gamma 318, centre (642.5, 522.9)), with a flatter laser cone (beta 1.25 rad) so
+    that the ring falls inside its mirror (elevations -62 to 25 deg)."""
+    g = 318.0 / 1.134
+    return bc.SensorParams(xi=1.134, phi=0.0, alpha_u=g, alpha_v=-g, u0=642.5, v0=522.9,
+                           h=200.0, beta=1.25)
+
+
+SCENARIOS = {
+    # walls whose texture (posters with text bars, wood grain, brick, a bright rail near the
+    # ring) has edges as strong as the laser
+    "textured_2500": dict(range_mm=2500, laser_peak=110.0,
+                          texture=dict(contrast=1.6, posters=3, materials=None)),
+    # a faint far ring: peaks of ~30-100 grey levels over a pixel noise sd near 10
+    "faint_4000_off": dict(range_mm=4000, laser_peak=115.0, scene_level=120.0,
+                           noise=dict(gain=0.7, read=4.0), texture=dict(posters=1)),
+    # lamps and glints on and off the ring, flickering between the two frames
+    "lamps": dict(range_mm=3000, laser_peak=130.0, noise=dict(flicker=0.05),
+                  lamps=dict(on_ring=2, off_ring=3, glints_on=3, glints_off=4, ceiling=2)),
+    "red_colour": dict(range_mm=2500, laser_peak=130.0, colour="red"),
+    "red_bayer": dict(range_mm=2500, laser_peak=130.0, colour="red", noise=dict(bayer=True)),
+    "cam1280": dict(range_mm=3000, laser_peak=120.0, image_size=(1280, 1024),
+                    mirror=(-62.0, 25.0), beam=dict(divergence=0.006, width_mm=4.0),
+                    lamps=dict(on_ring=1, off_ring=2, glints_on=1, glints_off=2, ceiling=1)),
+    "no_ring": dict(range_mm=2500, laser=False, texture=dict(contrast=1.4),
+                    lamps=dict(on_ring=1, off_ring=2, glints_on=2, glints_off=2, ceiling=1)),
+    "tilted": dict(range_mm=2500, laser_peak=120.0,
+                   laser_pose=bc.LaserPose(tilt_x=0.03, tilt_y=-0.02, offset_x=6.0,
+                                           offset_y=-4.0)),
+    "near_1200": dict(range_mm=1200, laser_peak=150.0),
+    # no texture, no lamps, no noise: for checking the truth itself
+    "clean_2500": dict(range_mm=2500, noise=False, beam=dict(speckle=0.0),
+                       texture=dict(contrast=0.0, posters=0, rail=False, door=False)),
+}
+
+
+def scenario(name):
+    """Keyword arguments of :func:`render2` for a named scenario (``params`` included)."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; expected one of {sorted(SCENARIOS)}")
+    kw = {k: (dict(v) if isinstance(v, dict) else v) for k, v in SCENARIOS[name].items()}
+    kw["params"] = camera_1280() if name == "cam1280" else bc.SensorParams.paper()
+    return kw
+
+
+def render_scenario(name, rng=None, **overrides):
+    """``render2(**scenario(name), rng=rng)`` with keyword overrides."""
+    kw = scenario(name)
+    kw.update(overrides)
+    params = kw.pop("params")
+    return render2(params, rng=rng, **kw)

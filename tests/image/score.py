@@ -10,7 +10,7 @@ import numpy as np
 
 def _ring_polar(truth, center):
     """The true ring as radius against image angle about ``center``, sorted, for the visible
-    azimuths; also the half-width of an azimuth bin (rad)."""
+    azimuths."""
     pix = truth.pixels[truth.visible]
     phi = np.arctan2(pix[:, 1] - center[1], pix[:, 0] - center[0])
     r = np.hypot(pix[:, 0] - center[0], pix[:, 1] - center[1])
@@ -32,7 +32,7 @@ def _ring_radius(phi_t, r_t, phi):
     return np.where(gap, np.nan, r), drdphi
 
 
-def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, n_bins=360):
+def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, n_bins=None):
     """Errors of extracted laser pixels against the true ring.
 
     Parameters
@@ -46,19 +46,23 @@ def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, 
         Points the extractor flagged; they are left out of every number.
     gross_px : float
         A point with ``|error| > gross_px`` (or at an angle where no ring is visible) is gross.
-    n_bins : int
-        Azimuth bins for ``kept``.
+    n_bins : int, optional
+        For ``kept``: the number of azimuths the extractor sampled around the whole ring. By
+        default the number of pixels given, flagged ones included (right for an extractor that
+        returns one point per sampled azimuth and flags rather than drops); at least 36.
 
     Returns
     -------
     dict
-        ``n`` points scored; ``kept``: fraction of the azimuth bins holding visible ring that
-        hold at least one point; ``bias``: mean error of the non-gross points (px);
-        ``median``; ``robust_sd``: 1.4826 MAD of the errors of all points on the ring;
+        ``n`` points scored; ``kept``: the points at angles where the ring is visible over
+        the azimuths sampled there (``n_bins`` times the visible fraction of the ring's
+        azimuths), at most 1; ``bias``: mean error of the non-gross points (px); ``median``;
+        ``robust_sd``: 1.4826 MAD of the errors of all points on the ring;
         ``gross``: fraction of gross points; ``rms`` of the non-gross errors;
         ``errors`` (n,) with NaN where no ring is visible.
     """
     pixels = np.asarray(pixels, float).reshape(-1, 2)
+    n_bins = max(36, len(pixels)) if n_bins is None else int(n_bins)
     if flagged is not None:
         pixels = pixels[~np.asarray(flagged, bool)]
     center = truth.center if center is None else np.asarray(center, float)
@@ -73,13 +77,11 @@ def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, 
     err = (r - rt) * np.cos(np.arctan2(drt, rt))
     on = np.isfinite(err)
     good = on & (np.abs(err) <= gross_px)
-    edges = np.linspace(-np.pi, np.pi, n_bins + 1)
-    ring_bins = np.unique(np.clip(np.digitize(phi_t, edges) - 1, 0, n_bins - 1))
-    got = np.unique(np.clip(np.digitize(phi[on], edges) - 1, 0, n_bins - 1))
+    ring_frac = float(np.mean(truth.visible))
     med = float(np.median(err[on])) if np.any(on) else nan
     return dict(
         n=len(pixels),
-        kept=float(np.isin(ring_bins, got).mean()),
+        kept=float(min(1.0, np.count_nonzero(on) / (n_bins * ring_frac))),
         bias=float(np.mean(err[good])) if np.any(good) else nan,
         median=med,
         robust_sd=float(1.4826 * np.median(np.abs(err[on] - med))) if np.any(on) else nan,
