@@ -171,7 +171,7 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
 
 
 def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=None,
-                  min_snr=4.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
+                  min_snr=3.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
                   highpass_px=15, check=True):
     """Extract the laser centre line, one sub-pixel point per image azimuth.
 
@@ -261,7 +261,9 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     """Two passes: 360 profiles over every radius from the mirror's centre (the runner-up's
     gain, the ring's circle), then the final profiles about the ring's centre, in a band
     about its radius, with a cost for straying from that circle."""
-    blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf)
+    # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
+    blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
+                      margin=1 if sig is not raw else 3)
     c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
     pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
                                         r_band=band0, runner_up=runner_up)
@@ -306,7 +308,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
              "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * np.sqrt(var_r)),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
-             "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 2 * w_s,
+             "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
