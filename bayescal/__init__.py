@@ -11,7 +11,7 @@ See ``docs/`` for the model, conventions and the public API.
 from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError
 from .checks.inputs import DuplicateRowsWarning
-from .errors import DegenerateInputError
+from .errors import DegenerateInputError, ExtractionError
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
@@ -100,6 +100,7 @@ __all__ = [
     "DuplicateRowsWarning",
     "NoiseCollapseError",
     "DegenerateInputError",
+    "ExtractionError",
     "render_image",
     "RenderTruth",
     "extract_laser",

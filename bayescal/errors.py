@@ -12,8 +12,8 @@ Exit codes of the ``bayescal`` command: :data:`EXIT_OK` (0) success,
 
 from __future__ import annotations
 
-__all__ = ["UsageError", "Failure", "InputError", "DegenerateInputError", "NotConvergedWarning",
-           "NotConvergedError",
+__all__ = ["UsageError", "Failure", "InputError", "DegenerateInputError", "ExtractionError",
+           "NotConvergedWarning", "NotConvergedError",
            "NoiseAtBoundWarning", "EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_INTERRUPTED"]
 
 EXIT_OK = 0
@@ -70,3 +70,21 @@ class NotConvergedError(RuntimeError):
         super().__init__(message)
         self.tau = tau
         self.posterior = posterior
+
+
+class ExtractionError(ValueError):
+    """An image whose laser extraction is implausible: no ring, most of it flagged, too few
+    azimuths, or a ring far from the mirror's image (bad input: exit code 2 from the command
+    line, nothing written).
+
+    Attributes
+    ----------
+    reason : str
+        What is implausible, with the numbers that show it.
+    advice : str
+        What to try (a laser-off image, the centre, the colour channel).
+    """
+
+    def __init__(self, reason, advice=""):
+        super().__init__(f"{reason}. {advice}".strip() if advice else reason)
+        self.reason, self.advice = reason, advice

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DegenerateInputError, Failure, UsageError
+from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..sensor.pose import POSE_NAMES
 from .options import cli_words
@@ -127,10 +127,14 @@ def run_extract(job, folder):
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
 
-    lp = extract_laser(job.image, background=job.background, center=job.center,
-                       along_sd=job.along_sd)
-    if len(lp) == 0 or np.all(lp.flagged):
-        return f"no laser ring found in {job.image_path}"
+    try:
+        lp = extract_laser(job.image, background=job.background, center=job.center,
+                           along_sd=job.along_sd)
+    except ExtractionError as exc:          # an implausible ring is bad input: exit 2
+        raise UsageError(f"{job.image_path}: {exc.reason}. Try a laser-off image of the same "
+                         "view (--background IMAGE), the centre of the mirror's image "
+                         "(--center U V), or the laser's colour channel (--channel 0/1/2)"
+                         ) from None
     p = folder.path
     write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
                        image_size=job.image.shape[1::-1])

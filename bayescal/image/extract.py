@@ -9,18 +9,19 @@ accuracy are in ``docs/images.md``.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import grey_opening, median_filter
+from scipy.ndimage import median_filter
 
+from .doubt import blob_mask, check_ring, dark_core, mirror_disc
 from .noise import noise_model
+from .peak import fit_peaks
 from .read import as_gray, read_image
+from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES"]
-
-_OFFS = np.arange(-2, 3)
-
 
 @dataclass(frozen=True)
 class LaserPixels:
@@ -56,101 +57,6 @@ class LaserPixels:
         return np.sqrt(np.linalg.eigvalsh(self.covariance)[:, 0])
 
 
-def _estimate_center(img):
-    """Centre of the ring: a robust circle fit to the brightest pixels of the ring."""
-    line = img - grey_opening(img, size=(7, 7))        # thin bright structures only
-    thr = np.quantile(line, 0.998)
-    vv, uu = np.nonzero(line >= thr)
-    w = np.ones(len(uu))
-    for _ in range(8):
-        A = np.stack([uu, vv, np.ones_like(uu)], axis=1).astype(float)
-        b = uu.astype(float) ** 2 + vv.astype(float) ** 2
-        sol = np.linalg.lstsq(A * w[:, None], b * w, rcond=None)[0]
-        c = sol[:2] / 2
-        R = np.sqrt(sol[2] + c @ c)
-        res = np.hypot(uu - c[0], vv - c[1]) - R
-        s = 1.4826 * np.median(np.abs(res)) + 0.5
-        w = 1.0 / np.maximum(1.0, np.abs(res) / (2 * s))
-    return c, R
-
-
-def _bilinear(img, u, v):
-    """Samples and their pixel weights: values (...), indices (..., 4, 2), weights (..., 4)."""
-    H, W = img.shape
-    u0 = np.clip(np.floor(u).astype(int), 0, W - 2)
-    v0 = np.clip(np.floor(v).astype(int), 0, H - 2)
-    fu, fv = u - u0, v - v0
-    idx = np.stack([np.stack([v0, u0], -1), np.stack([v0, u0 + 1], -1),
-                    np.stack([v0 + 1, u0], -1), np.stack([v0 + 1, u0 + 1], -1)], axis=-2)
-    wts = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=-1)
-    vals = np.sum(img[idx[..., 0], idx[..., 1]] * wts, axis=-1)
-    return vals, idx, wts
-
-
-def _profiles(img, center, phi, radii):
-    radii = np.atleast_2d(radii)
-    u = center[0] + np.cos(phi)[:, None] * radii
-    v = center[1] + np.sin(phi)[:, None] * radii
-    return _bilinear(img, u, v)[0]
-
-
-def _pick(prof, radii, r_ref, gate):
-    """Index of the highest local maximum per profile (within ``gate`` px of r_ref)."""
-    p = prof.copy()
-    if r_ref is not None:
-        p[np.abs(radii[None, :] - r_ref[:, None]) > gate] = -np.inf
-    p[:, :2] = p[:, -2:] = -np.inf
-    return np.argmax(p, axis=1)
-
-
-def _fit_peak(img, var_img, center, phi, r_pk):
-    """Gaussian fit to 5 radial samples (1 px apart) around r_pk; variance by propagation.
-
-    Returns the peak radius (px), its variance (px^2), the height and the SNR.
-    """
-    radii = r_pk[:, None] + _OFFS[None, :]
-    u = center[0] + np.cos(phi)[:, None] * radii
-    v = center[1] + np.sin(phi)[:, None] * radii
-    vals, idx, wts = _bilinear(img, u, v)
-    ends = np.concatenate([_profiles(img, center, phi, r_pk[:, None] + o) for o in
-                           (np.array([-5.0, -4.0]), np.array([4.0, 5.0]))], axis=1)
-    base = np.median(ends, axis=1)
-    s = np.maximum(vals - base[:, None], 1e-3 * np.maximum(vals.max(1), 1)[:, None])
-    # weighted quadratic fit of log(s) against x, weights s^2 (Caruana)
-    X = np.stack([np.ones(5), _OFFS, _OFFS ** 2], axis=1).astype(float)
-    Wt = s ** 2
-    XtW = X.T[None] * Wt[:, None, :]
-    Q = np.linalg.solve(XtW @ X[None], XtW)                    # (N, 3, 5)
-    coef = Q @ np.log(s)[..., None]
-    b, c = coef[:, 1, 0], np.minimum(coef[:, 2, 0], -1e-3)
-    mu = np.clip(-b / (2 * c), -2.0, 2.0)
-    dmu_dy = -Q[:, 1] / (2 * c[:, None]) + b[:, None] * Q[:, 2] / (2 * c[:, None] ** 2)
-    dmu_ds = dmu_dy / s                                         # (N, 5)
-    # to pixels: sum the coefficients of each pixel (samples share pixels)
-    anchor = idx.reshape(len(phi), -1, 2).min(axis=1)
-    loc = idx - anchor[:, None, None, :]
-    flat = (loc[..., 0] * 8 + loc[..., 1]).reshape(len(phi), -1)
-    coefs = np.zeros((len(phi), 64))
-    np.add.at(coefs, (np.arange(len(phi))[:, None], flat),
-              (dmu_ds[..., None] * wts).reshape(len(phi), -1))
-    gi = anchor[:, None, :] + np.stack(np.unravel_index(np.arange(64), (8, 8)), -1)[None]
-    gi[..., 0] = np.clip(gi[..., 0], 0, img.shape[0] - 1)
-    gi[..., 1] = np.clip(gi[..., 1], 0, img.shape[1] - 1)
-    var = np.sum(coefs ** 2 * var_img[gi[..., 0], gi[..., 1]], axis=1)
-    # goodness of fit (residuals in grey levels over their sd, 2 degrees of freedom)
-    resid = (np.log(s) - (X[None] @ coef)[..., 0]) * s
-    sd_s = np.sqrt(np.sum(wts ** 2 * var_img[idx[..., 0], idx[..., 1]], axis=-1))
-    chi2 = np.sum((resid / sd_s) ** 2, axis=1) / 2.0
-    height = s[:, 2]
-    snr = height / np.sqrt(var_img[idx[:, 2, 0, 0], idx[:, 2, 0, 1]])
-    return r_pk + mu, var, height, snr, chi2
-
-
-def _smooth_radius(phi_r, n_win):
-    """Circular running median of the ring radius over ``n_win`` azimuths."""
-    return median_filter(phi_r, size=n_win, mode="wrap")
-
-
 def _covariances(phi, r, r_smooth, var_r, along_sd):
     """Covariances (N, 2, 2): radial variance projected on the ring's normal."""
     n = len(phi)
@@ -167,36 +73,158 @@ def _covariances(phi, r, r_smooth, var_r, along_sd):
             + along_sd ** 2 * tang[:, :, None] * tang[:, None, :])
 
 
+def _signal(image, background, channel):
+    """The laser's signal (the image, or the image minus the laser-off image), its noise
+    variance per pixel, the raw image and its saturation level."""
+    img = as_gray(image, channel=channel, name="image")
+    top = _saturation(image, img)
+    if background is None:
+        return img, noise_model(img)(img), img, img >= top
+    bg = as_gray(background, channel=channel, name="background")
+    if bg.shape != img.shape:
+        raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
+    # var(on - off) = var(on) + var(off) = 2a + b (on + off): fitted on the difference, where
+    # the texture cancels, against the mean level of the two exposures
+    mean = 0.5 * (img + bg)
+    var_img = noise_model(img - bg, levels=mean)(mean)
+    return img - bg, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
+
+
+def _saturation(image, gray):
+    """The grey level at which the sensor saturates: the integer type's top, else the
+    image's maximum."""
+    dt = np.asarray(image).dtype
+    return float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(gray.max())
+
+
+def _start(sig, raw, sat, center, radius, highpass_px):
+    """Centre of the first profiles, the search's outer radius and the mirror's disc."""
+    mirror = mirror_disc(raw)
+    H, W = raw.shape
+    if center is not None:
+        c = np.asarray(center, dtype=float)
+    elif mirror is not None:
+        c = mirror[0]
+    else:
+        c = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
+    corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
+    r_max = float(np.max(np.hypot(*(corners - c).T)))
+    band = radius
+    if mirror is not None:          # the mirror's rim is a circle too: stay inside it
+        r_max = min(r_max, mirror[1] - max(8.0, 0.05 * mirror[1]))
+    # the ring lies outside the camera's own dark reflection (its edge is a circle too)
+    core = dark_core(raw, c, mirror[1] if mirror is not None else 0.5 * min(H, W))
+    if core > 0:                    # past the high-pass's reach from its edge
+        lo = core + 0.5 * highpass_px + 2.0
+        band = (lo, r_max) if radius is None else (max(radius[0], lo), radius[1])
+    if radius is not None:
+        r_max = min(r_max, float(radius[1]) + 8.0)
+    return c, r_max, mirror, band
+
+
+def _score_without_blobs(pol, blobs):
+    """Zero the ridge score on saturated blobs: a lamp neither attracts nor repels the path."""
+    u = pol.center[0] + np.cos(pol.phi)[:, None] * pol.radii[None]
+    v = pol.center[1] + np.sin(pol.phi)[:, None] * pol.radii[None]
+    H, W = blobs.shape
+    on = blobs[np.clip(np.rint(v).astype(int), 0, H - 1), np.clip(np.rint(u).astype(int), 0, W - 1)]
+    pol.score[on] = 0.0
+    return on
+
+
+def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False,
+            prior=None):
+    """Polar image around ``c``, the ring's path in it (radius index per azimuth), its
+    closure, the blob mask in polar coordinates, and the path's gain and (``runner_up``)
+    that of the best closed path 8 px or more off it."""
+    r_min = 0.0 if r_band is None else r_band[0] - highpass_px
+    pol = polar_image(sig, c, n_azimuth=n, r_max=r_max, highpass_px=highpass_px, r_min=r_min)
+    if r_band is not None:
+        pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
+    on_blob = _score_without_blobs(pol, blobs)
+    if prior is not None:
+        # the ring is nearly a circle about ``c``: a cost for straying far from it
+        far = np.maximum(np.abs(pol.radii - prior) - max(5.0, 0.08 * prior), 0.0)
+        pol.score = pol.score - far[None, :]
+    path, closure, gain = ring_path(pol.score)
+    gains = (gain, np.nan)
+    if runner_up:
+        off = pol.score.copy()
+        off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
+        gains = (gain, ring_path(off)[2])
+    # the highest ridge sample within 2 px of the path (the path moves in whole steps)
+    K, i = len(pol.radii), np.arange(n)
+    cand = np.clip(path[:, None] + np.arange(-2, 3)[None], 2, K - 3)
+    best = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
+    # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
+    z = pol.score[i, path]
+    model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
+    stray = np.abs(pol.radii[best] - model) > 2.0
+    if np.any(stray):
+        k0 = np.clip(np.rint(model - pol.radii[0]).astype(int), 2, K - 3)
+        cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
+        near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+        best = np.where(stray, near, best)
+    pol.model = model
+    return pol, best, closure, on_blob, gains
+
+
 def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=None,
-                  min_snr=5.0, gate_px=3.0, along_sd=5.0, var_floor=2.5e-3):
+                  min_snr=3.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
+                  highpass_px=15, check=True):
     """Extract the laser centre line, one sub-pixel point per image azimuth.
+
+    Radial profiles from a centre inside the ring are high-passed by subtracting their
+    running median (``highpass_px`` long), which removes wall shading, texture steps and
+    the mirror's edge; the ring is the closed ridge through the profiles found by dynamic
+    programming over azimuth (the ring is continuous: one point per azimuth, small radial
+    steps between neighbours), which wall texture, lamps and glints off the ring do not
+    follow. Each point is then a Gaussian fit to five samples, its variance propagated
+    from the image noise (``docs/images.md``).
 
     Parameters
     ----------
     image : ndarray, shape (H, W) or (H, W, C)
         The image with the laser on (8 or 16 bit, or float).
     background : ndarray, shape (H, W) or (H, W, C), optional
-        The same view with the laser off, subtracted before the search.
+        The same view with the laser off: the search runs on the difference, with the noise
+        of both exposures.
     center : array_like, shape (2,), optional
-        Centre of the radial profiles ``(u, v)`` px (e.g. ``(u0, v0)``); by default
-        the centre of a robust circle fit to the brightest pixels.
+        Centre of the radial profiles ``(u, v)`` px (e.g. ``(u0, v0)``); by default the
+        centre of the mirror's image, then of a circle fitted to the ring found.
     channel : int, optional
-        Colour channel of the laser in a colour image (0: red).
+        Colour channel of the laser in a colour image (0 red, 1 green, 2 blue).
     n_azimuth : int, optional
         Number of profiles; default one per 2 px of the ring's circumference.
     min_snr : float, optional
         Points whose peak is below ``min_snr`` noise sds are flagged.
     gate_px : float, optional
-        Points farther than ``gate_px`` (or 5 of their sds) from the smoothed
-        ring are flagged.
+        Points farther than ``gate_px`` (or 5 of their sds) from the smoothed ring are
+        flagged.
     along_sd : float, optional
         Standard deviation given along the ring, px (a point may slide along it).
     var_floor : float, optional
         Variance added along the normal, px^2 (interpolation and model error).
+    radius : tuple of float, optional
+        ``(low, high)``: the ring's expected radius around the centre, px; the search
+        stays inside it, and a ring found outside it is an error.
+    highpass_px : int, optional
+        Length of the running median subtracted from each profile, px (several times the
+        stripe's width).
+    check : bool, optional
+        Raise :class:`~bayescal.errors.ExtractionError` when the ring found is implausible
+        (False returns it, flagged as it is).
 
     Returns
     -------
     LaserPixels
+
+    Raises
+    ------
+    ExtractionError
+        No ring, most of it flagged (fewer than half of the azimuths kept), a path that
+        does not close, or a ring off the mirror's image or outside ``radius``.
 
     Examples
     --------
@@ -207,54 +235,101 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     >>> lp.pixels.shape[1], lp.covariance.shape[1:]
     (2, (2, 2))
     """
-    img = as_gray(image, channel=channel, name="image")
-    if background is not None:
-        bg = as_gray(background, channel=channel, name="background")
-        if bg.shape != img.shape:
-            raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
-        # the texture cancels in the difference: its second differences are noise only
-        var_img = noise_model(img - bg, levels=0.5 * (img + bg))(img + bg)
-        img = img - bg
-    else:
-        var_img = noise_model(img)(img)
-    if center is None:
-        c, R = _estimate_center(img)
-    else:
+    sig, var_img, raw, sat = _signal(image, background, channel)
+    if center is not None:
         c = np.asarray(center, dtype=float)
         if c.shape != (2,) or not np.all(np.isfinite(c)):
             raise ValueError(f"center must be (u, v) px, finite, got {center!r}")
-        R = None
-    return _extract(img, var_img, c, R, n_azimuth=n_azimuth, min_snr=min_snr,
-                    gate_px=gate_px, along_sd=along_sd, var_floor=var_floor)
+    if radius is not None:
+        radius = tuple(float(x) for x in np.ravel(radius))
+        if len(radius) != 2 or not 0 <= radius[0] < radius[1]:
+            raise ValueError(f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
+    pol, k, on_blob, closure, gains, mirror = _find_ring(
+        sig, raw, sat, center, radius, n_azimuth=n_azimuth, highpass_px=highpass_px,
+        runner_up=check)
+    lp, _ = _points(sig, var_img, pol, k, on_blob, min_snr=min_snr, gate_px=gate_px,
+                    along_sd=along_sd, var_floor=var_floor)
+    if check:
+        ok = ~lp.flagged
+        cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (pol.center, np.nan, None)
+        check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=closure,
+                   gains=gains)
+    return lp
 
 
-def _extract(img, var_img, c, R, *, n_azimuth, min_snr, gate_px, along_sd, var_floor):
-    H, W = img.shape
-    r_max = max(min(c[0], c[1], W - 1 - c[0], H - 1 - c[1]) - 6, 10)
-    radii = np.arange(3.0, r_max)
-    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * (R or 100.0), 90, 3600))
-    phi = np.linspace(-np.pi, np.pi, n, endpoint=False)
-    prof = _profiles(img, c, phi, radii)
-    r0 = radii[_pick(prof, radii, None, 0)]
-    r_s = _smooth_radius(r0, max(5, n // 24) | 1)
-    r1 = radii[_pick(prof, radii, r_s, 2 * gate_px + 2)]
-    r, var_r, height, snr, chi2 = _fit_peak(img, var_img, c, phi, r1)
+def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_up):
+    """Two passes: 360 profiles over every radius from the mirror's centre (the runner-up's
+    gain, the ring's circle), then the final profiles about the ring's centre, in a band
+    about its radius, with a cost for straying from that circle."""
+    # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
+    blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
+                      margin=1 if sig is not raw else 3)
+    c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
+    pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
+                                        r_band=band0, runner_up=runner_up)
+    prior = ring_prior(pol)
+    if prior is not None and np.hypot(*(prior[0] - c)) < 0.5 * prior[1]:
+        c = c if center is not None else prior[0]
+        R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
+    else:
+        prior, R = None, 100.0
+    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
+    band = band0
+    if prior is not None:
+        band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
+        band = band if band0 is None else (max(band[0], band0[0]), min(band[1], band0[1]))
+    r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
+    pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
+                                          r_band=band, prior=None if center is not None else R)
+    return pol, k, on_blob, closure, gains, mirror
+
+
+def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor):
+    """Sub-pixel points on the path, their covariances and flags."""
+    n = len(pol.phi)
+    i = np.arange(n)
+    offs = np.arange(-2, 3)
+    base = pol.base[i[:, None], k[:, None] + offs[None]]
+    r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
+                                                         pol.radii[k], base, sub=pol.sub)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
     # the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that matches
-    scale = max(1.0, float(np.median(chi2[np.isfinite(chi2)])) / np.log(2.0))
+    good = np.isfinite(chi2)
+    scale = max(1.0, float(np.median(chi2[good])) / np.log(2.0)) if good.any() else 1.0
     var_r = np.maximum(scale, np.nan_to_num(chi2, nan=scale)) * var_r + var_floor
-    r_s = _smooth_radius(r, max(5, n // 36) | 1)
-    # a lamp or a ghost: off the smoothed ring, a profile unlike the beam (chi2/2 > 6.9 has
-    # probability 0.001 for a good fit), or far brighter or dimmer than its neighbours
-    h_s = median_filter(height, size=max(5, n // 36) | 1, mode="wrap")
-    flagged = ((np.abs(r - r_s) > np.maximum(gate_px, 5 * np.sqrt(var_r)))
-               | (snr < min_snr) | ~np.isfinite(r) | (chi2 > 6.9 * scale)
-               | (height > 3 * h_s) | (height < h_s / 3))
-    keep = height > 0
-    pix = c + r[:, None] * np.stack([np.cos(phi), np.sin(phi)], -1)
-    cov = _covariances(phi, r, r_s, var_r, along_sd)
-    return LaserPixels(pixels=pix[keep], covariance=cov[keep], snr=snr[keep],
-                       flagged=flagged[keep], center=np.asarray(c, dtype=float))
+    win = max(5, n // 36) | 1
+    r_s = median_filter(r, size=win, mode="wrap")
+    var_r = var_r * _scatter_factor(r - r_s, var_r, 3 * win)
+    # profiles closer than 2 px share pixels: their errors correlate, so each counts for
+    # less (the ring's information per px of its length stays that of 2-px spacing)
+    var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
+    h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
+    w_s = median_filter(width, size=win, mode="wrap")
+    gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
+             "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * np.sqrt(var_r)),
+             "faint": snr < min_snr, "no peak": ~np.isfinite(r),
+             "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
+             "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
+    flagged = np.logical_or.reduce(list(gates.values()))
+    pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
+    cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
+    lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
+                     center=np.asarray(pol.center, dtype=float))
+    return lp, gates
+
+
+def _scatter_factor(d, var, win):
+    """Factor (>= 1) on the variances where the points scatter about the smoothed ring more
+    than their variances say (texture under the stripe, a misfit the noise model misses):
+    the running median of ``d^2 / var`` over ``win`` azimuths over 0.455, the median of a
+    chi-square with 1 degree of freedom."""
+    q = np.where(np.abs(d) < 3.0, d ** 2 / var, np.nan)
+    n, h = len(q), win // 2
+    idx = (np.arange(n)[:, None] + np.arange(-h, h + 1)[None]) % n
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(q[idx], axis=1)
+    return np.maximum(1.0, np.nan_to_num(med, nan=1.0) / 0.455)
 
 
 #: file suffixes read as images (a reconstruction frame given as an image is extracted)
@@ -281,10 +356,12 @@ def laser_frame(path, *, center=None):
     UsageError
         Unreadable image, or no laser pixel the extractor trusts.
     """
-    from ..errors import UsageError
+    from ..errors import ExtractionError, UsageError
 
     try:
         lp = extract_laser(read_image(path), center=center)
+    except ExtractionError as exc:          # the reason only: the advice names Python's arguments
+        raise UsageError(f"{path}: cannot extract laser pixels ({exc.reason})") from None
     except (OSError, ValueError) as exc:
         raise UsageError(f"{path}: cannot extract laser pixels ({exc})") from None
     keep = ~np.asarray(lp.flagged, bool)

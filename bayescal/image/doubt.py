@@ -1,0 +1,142 @@
+"""What the extractor doubts: the mirror's image, saturated blobs, and whether the ring it
+found is plausible at all (:func:`check_ring`, raising :class:`~bayescal.errors.ExtractionError`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import (
+    binary_closing,
+    binary_dilation,
+    binary_erosion,
+    binary_fill_holes,
+    gaussian_filter,
+    label,
+)
+
+from ..errors import ExtractionError
+from .ring import circle_fit
+
+__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "ADVICE"]
+
+#: what to try when an extraction is implausible (the command line says it with its options)
+ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
+          "image (center=(u, v)), or the laser's colour channel (channel=...)")
+
+
+def mirror_disc(raw):
+    """Centre (2,) and radius (px) of the mirror's image: the lit disc around the dark
+    margin of a catadioptric image, fitted to its outer edge; None when the image has no
+    dark margin to find (lit to its corners, or dark everywhere)."""
+    step = 4 if min(raw.shape) >= 256 else 2
+    small = gaussian_filter(raw[::step, ::step].astype(float), 1.5)
+    lo, hi = np.quantile(small, [0.02, 0.9])
+    if not hi > lo:
+        return None
+    # a low threshold and a closing: dark texture at the rim must not bite into the disc
+    lit = binary_fill_holes(binary_closing(small > lo + 0.1 * (hi - lo), iterations=3))
+    lab, n = label(lit)
+    if n == 0:
+        return None
+    big = lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
+    frac = big.mean()
+    if not 0.05 < frac < 0.95:
+        return None
+    edge = big & ~binary_erosion(big)
+    edge[[0, -1], :] = edge[:, [0, -1]] = False        # the image's border is not the disc's
+    vv, uu = np.nonzero(edge)
+    if len(uu) < 20:
+        return None
+    c, R, res = circle_fit(np.column_stack([uu, vv]) * step + (step - 1) / 2.0)
+    if not np.all(np.isfinite(c)) or np.median(np.abs(res)) > 0.05 * R:
+        return None
+    return c, R
+
+
+def dark_core(raw, center, radius):
+    """Radius (px) of the dark disc at the centre of the mirror's image (the camera's own
+    reflection), 0 if there is none (a lit centre): where the median over azimuth of the grey
+    level first rises three quarters of the way from the darkest to the typical lit level."""
+    phi = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    r = np.arange(0.0, 0.8 * radius)
+    u = np.clip(center[0] + np.cos(phi)[:, None] * r, 0, raw.shape[1] - 1)
+    v = np.clip(center[1] + np.sin(phi)[:, None] * r, 0, raw.shape[0] - 1)
+    prof = np.median(raw[np.rint(v).astype(int), np.rint(u).astype(int)], axis=0)
+    lo, hi = np.min(prof), np.median(prof)
+    if not hi > lo or prof[0] > lo + 0.25 * (hi - lo):
+        return 0.0
+    return float(r[int(np.argmax(prof > lo + 0.75 * (hi - lo)))])
+
+
+def blob_mask(raw, *, top=None, radius=2, margin=3):
+    """Pixels of saturated blobs (lamps, glints), wider than ``2 radius + 1`` px, grown by
+    ``margin`` px; a saturated stripe (a near, bright ring) is thinner and stays out."""
+    top = float(np.max(raw)) if top is None else top
+    sat = raw >= top
+    if sat.mean() > 0.2 or not sat.any():                # a washed-out image: not blobs
+        return np.zeros(raw.shape, bool)
+    disc = np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius
+    core = binary_erosion(sat, structure=disc)
+    if not core.any():
+        return core
+    return binary_dilation(binary_dilation(core, structure=disc), iterations=radius + margin)
+
+
+def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=0.5,
+               closure=0, gains=(np.nan, np.nan), min_margin=1.5):
+    """Raise :class:`~bayescal.errors.ExtractionError` if the ring found is implausible.
+
+    Parameters
+    ----------
+    flagged : ndarray of bool, shape (N,)
+        The extractor's flags, one per azimuth.
+    center : ndarray, shape (2,)
+        Centre of a circle fitted to the unflagged points, px.
+    radius : float
+        Its radius, px.
+    mirror : tuple or None
+        ``(center, radius)`` of the mirror's image, px.
+    expected : tuple of float or None
+        ``(low, high)``: the ring's expected radius range, px.
+    min_kept : float
+        Smallest fraction of unflagged azimuths.
+    closure : int
+        Radial mismatch (px) of the dynamic-programming path after one lap.
+    gains : tuple of float
+        Mean ridge score per azimuth of the ring's path and of the best closed path off it
+        (:func:`~bayescal.image.ring.ring_path`); NaN skips the test.
+    min_margin : float
+        Smallest lead of the ring over that runner-up, noise sds per azimuth, when more
+        than 20 % of the ring is flagged: on wall texture alone the best two closed paths
+        score alike.
+    """
+    n = len(flagged)
+    kept = int(np.count_nonzero(~flagged))
+    if n == 0 or kept < 12:
+        raise ExtractionError(f"no laser ring found: {kept} of {n} azimuths hold a point the "
+                              "extractor trusts", ADVICE)
+    # a clear ring (few points flagged) stands on its own, whatever the texture's best
+    if gains[0] - gains[1] < min_margin and n - kept > 0.2 * n:
+        raise ExtractionError(f"no ring stands out of the image: the best closed ridge scores "
+                              f"{gains[0]:.1f} noise sds per azimuth, the best other one "
+                              f"{gains[1]:.1f} (a laser ring leads by {min_margin:g} or more); "
+                              "wall texture or a pattern, not a laser ring", ADVICE)
+    if kept < min_kept * n:
+        raise ExtractionError(f"most of the ring is flagged: {n - kept} of {n} azimuths "
+                              f"({100 * (n - kept) / n:.0f} %) are distractors or too faint "
+                              f"(at most {100 * (1 - min_kept):.0f} % allowed)", ADVICE)
+    if not np.isfinite(radius) or abs(closure) > max(3.0, 0.05 * radius):
+        raise ExtractionError(f"the ring found does not close on itself (it ends {closure} px "
+                              "from where it started, after one turn): not a laser ring",
+                              ADVICE)
+    if mirror is not None:
+        mc, mr = mirror
+        off = float(np.hypot(*(np.asarray(center) - mc)))
+        if off > 0.25 * mr or radius > 0.92 * mr:
+            raise ExtractionError(
+                f"the ring found (centre ({center[0]:.0f}, {center[1]:.0f}), radius "
+                f"{radius:.0f} px) is far from the mirror's image (centre ({mc[0]:.0f}, "
+                f"{mc[1]:.0f}), radius {mr:.0f} px)", ADVICE)
+    if expected is not None and not expected[0] <= radius <= expected[1]:
+        raise ExtractionError(f"the ring found has radius {radius:.0f} px, outside the "
+                              f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)

@@ -1,0 +1,233 @@
+"""The laser ring in polar coordinates: radial high-pass, a local noise scale, and the
+ring chosen by dynamic programming over azimuth.
+
+A radial profile from a centre inside the ring crosses the stripe once. Wall texture
+varies slowly along the profile (or in steps, at a poster's edge); a running median
+along the radius follows both, so the profile minus its median keeps thin ridges
+only. Per azimuth the texture can still out-shine the laser, but the laser is the one
+ridge that continues around the whole image: the ring is the closed path through the
+(azimuth, radius) grid that maximises the summed, capped ridge score with a penalty on
+every radial step (:func:`ring_path`).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
+
+__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_prior"]
+
+#: first radius of the profiles, px (the centre's few pixels carry no ring)
+R_MIN = 3.0
+
+
+class PolarImage:
+    """Profiles of an image along rays from ``center``: ``values[i, k]`` at azimuth
+    ``phi[i]`` and radius ``radii[k]`` (bilinear; NaN outside the image).
+
+    Attributes
+    ----------
+    phi : ndarray, shape (n,)
+    radii : ndarray, shape (K,)
+    values, base, high, score : ndarray, shape (n, K)
+        Samples; their running radial median; ``values - base``; the ridge score (the
+        high-pass smoothed over 1 px and divided by its local robust sd).
+    valid : ndarray of bool, shape (n, K)
+    """
+
+    def __init__(self, img, center, phi, radii, highpass_px, sub=2):
+        self.center, self.phi, self.radii = np.asarray(center, float), phi, radii
+        #: azimuth offsets of the rays averaged into one profile (they share its pixels)
+        self.sub = (np.arange(sub) - (sub - 1) / 2.0) * (2 * np.pi / len(phi)) / sub
+        H, W = img.shape
+        self.values = 0.0
+        for d in self.sub:
+            u = self.center[0] + np.cos(phi + d)[:, None] * radii[None]
+            v = self.center[1] + np.sin(phi + d)[:, None] * radii[None]
+            vals = map_coordinates(img, [v.ravel(), u.ravel()], order=1, mode="nearest")
+            self.values = self.values + vals.reshape(u.shape) / sub
+        self.valid = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        w = max(5, int(highpass_px) | 1)
+        self.base = median_filter(self.values, size=(1, w), mode="nearest")
+        self.high = np.where(self.valid, self.values - self.base, 0.0)
+        smooth = gaussian_filter1d(self.high, 1.0, axis=1)
+        self.scale = _local_sd(smooth, self.valid)
+        # near the centre neighbouring profiles sample the same pixels: one azimuth step
+        # there is less than a pixel of new evidence, and a blob would pass for a ring
+        arc = np.minimum(1.0, radii * (2 * np.pi / len(phi)))
+        self.score = np.where(self.valid, smooth / self.scale, 0.0) * arc[None, :]
+
+
+def _local_sd(x, valid, *, block=(8, 32)):
+    """Robust local sd of ``x``: the median absolute value in blocks of ``block`` samples
+    (azimuth x radius), so that the ridge, a few samples of each block, does not count as
+    noise; blocks are blended bilinearly and invalid samples ignored."""
+    n, K = x.shape
+    bn, bk = -(-n // block[0]), -(-K // block[1])
+    a = np.full((bn * block[0], bk * block[1]), np.nan)
+    a[:n, :K] = np.where(valid, np.abs(x), np.nan)
+    blocks = a.reshape(bn, block[0], bk, block[1]).transpose(0, 2, 1, 3).reshape(bn, bk, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)       # all-NaN blocks (off the image)
+        med = np.nanmedian(blocks, axis=2)
+    fill = np.nanmedian(med) if np.isfinite(med).any() else 1.0
+    med = np.where(np.isfinite(med), med, fill) * 1.4826
+    # bilinear blend of the block values, periodic in azimuth
+    ti = (np.arange(n) + 0.5) / block[0] - 0.5
+    tk = np.clip((np.arange(K) + 0.5) / block[1] - 0.5, 0, bk - 1)
+    i0 = np.floor(ti).astype(int)
+    fi = (ti - i0)[:, None]
+    k0 = np.minimum(np.floor(tk).astype(int), max(bk - 2, 0))
+    fk = (tk - k0)[None, :]
+    k1 = np.minimum(k0 + 1, bk - 1)
+    rows = (1 - fi) * med[i0 % bn] + fi * med[(i0 + 1) % bn]
+    s = (1 - fk) * rows[:, k0] + fk * rows[:, k1]
+    return np.maximum(s, 1e-9 + 1e-6 * fill)
+
+
+def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
+    """The :class:`PolarImage` of ``img`` around ``center`` from ``r_min`` (an integer
+    offset from :data:`R_MIN`) out to ``r_max`` px."""
+    # mid-step azimuths: one profile in the middle of each of n equal sectors (of each
+    # degree for n = 360)
+    phi = np.linspace(-np.pi, np.pi, int(n_azimuth), endpoint=False) + np.pi / int(n_azimuth)
+    r0 = R_MIN + max(0.0, np.floor(r_min - R_MIN))
+    radii = np.arange(r0, max(float(r_max), r0 + 8.0))
+    return PolarImage(img, center, phi, radii, highpass_px)
+
+
+def ring_path(score, *, cap=8.0, jump=2, penalty=0.5):
+    """The closed ridge through ``score`` (n azimuths x K radii) by dynamic programming.
+
+    The path takes one radius index per azimuth, moves at most ``jump`` indices between
+    neighbouring azimuths at a cost of ``penalty`` per index, and maximises the sum of
+    ``min(score, cap)`` (a lamp cannot buy a detour). Closure: the recursion runs over two
+    laps and the path is read off the middle lap, far from both ends.
+
+    Returns
+    -------
+    path : ndarray of int, shape (n,)
+        Radius index per azimuth.
+    closure : int
+        Radial index difference between the path's two ends one lap apart (0 for a ring
+        that closes).
+    gain : float
+        Mean capped score per azimuth along the path, net of its step penalties.
+    """
+    n, K = score.shape
+    S = np.minimum(score, cap)
+    offs = np.arange(-jump, jump + 1)
+    pen = penalty * np.abs(offs)
+    buf = np.empty((len(offs), K))
+    back = np.empty((2 * n, K), dtype=np.int8)
+    D = S[0].copy()
+    cols = np.arange(K)
+    for t in range(1, 2 * n):
+        buf.fill(-np.inf)
+        for j, d in enumerate(offs):          # buf[j, k] = D[k + d] - pen[j]
+            if d >= 0:
+                buf[j, :K - d] = D[d:] - pen[j]
+            else:
+                buf[j, -d:] = D[:K + d] - pen[j]
+        arg = np.argmax(buf, axis=0)
+        back[t] = arg
+        D = buf[arg, cols] + S[t % n]
+    path = np.empty(2 * n, dtype=int)
+    path[-1] = int(np.argmax(D))
+    for t in range(2 * n - 1, 0, -1):
+        path[t - 1] = path[t] + offs[back[t, path[t]]]
+    lo = n // 2
+    out = np.empty(n, dtype=int)
+    idx = np.arange(lo, lo + n)
+    out[idx % n] = path[idx]
+    steps = np.abs(np.diff(np.append(out, out[0])))
+    gain = float(np.mean(S[np.arange(n), out]) - penalty * np.mean(steps))
+    return out, int(path[lo + n] - path[lo]), gain
+
+
+def circle_fit(points, weights=None, *, iters=8):
+    """Robust algebraic circle fit: centre (2,) px, radius px and the residuals (N,) px."""
+    p = np.asarray(points, float)
+    w0 = np.ones(len(p)) if weights is None else np.asarray(weights, float)
+    w = w0.copy()
+    A = np.column_stack([p, np.ones(len(p))])
+    b = np.sum(p ** 2, axis=1)
+    c, R, res = np.full(2, np.nan), np.nan, np.full(len(p), np.nan)
+    for _ in range(iters):
+        if np.count_nonzero(w > 0) < 3:
+            break
+        sol = np.linalg.lstsq(A * w[:, None], b * w, rcond=None)[0]
+        c = sol[:2] / 2
+        R = float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+        res = np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]) - R
+        s = 1.4826 * np.median(np.abs(res[w > 0])) + 0.3
+        w = w0 / np.maximum(1.0, np.abs(res) / (2.5 * s))
+        w[np.abs(res) > 6 * s] = 0.0
+    return c, R, res
+
+
+def _fourier(phi, order):
+    cols = [np.ones_like(phi)]
+    for m in range(1, order + 1):
+        cols += [np.cos(m * phi), np.sin(m * phi)]
+    return np.stack(cols, axis=1)
+
+
+def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
+    """A robust Fourier series ``r(phi)`` through a ring's radii (px), so that a sector where
+    the path followed something else (a rail or a poster's edge crossing the ring) does
+    not bend it: a least-absolute-deviations fit of order 2 (an ellipse, stiff) starts
+    trimmed least squares of order ``order`` on the ``keep`` fraction of the points nearest
+    the curve.
+
+    Returns the model's radius at ``phi`` (n,) and the robust sd of the residuals (px).
+    """
+    w0 = np.asarray(weights, float)
+    if np.count_nonzero(w0 > 0) <= 2 * order + 1:
+        return np.full(len(phi), np.median(r)), np.inf
+    A2, A = _fourier(phi, 2), _fourier(phi, order)
+    w = w0.copy()
+    for _ in range(iters):                          # IRLS for the L1 fit (weights are sqrt)
+        coef = np.linalg.lstsq(A2 * w[:, None], r * w, rcond=None)[0]
+        res = r - A2 @ coef
+        w = w0 / np.sqrt(np.maximum(np.abs(res), 0.05))
+    for _ in range(iters):                          # C-steps of trimmed least squares
+        use = w0 > 0
+        cut = np.quantile(np.abs(res[use]), keep)
+        w = w0 * (np.abs(res) <= cut)
+        coef = np.linalg.lstsq(A * w[:, None], r * w, rcond=None)[0]
+        res = r - A @ coef
+    sd = 1.4826 * float(np.median(np.abs(res[w0 > 0])))
+    return A @ coef, sd
+
+
+def ring_prior(pol, *, z_min=4.0, cap=8.0):
+    """Where the ring is, before any path: a circle through the strong ridge samples near
+    the radius that most azimuths share (centre (2,), radius px), or None.
+
+    A laser ring is nearly a circle (its elevation changes little with the wall's distance,
+    as the laser sits close to the mirror), while rails and texture edges on the walls
+    undulate more; a circle found this way keeps the path from following one of those
+    for a sector where it outshines the laser.
+    """
+    sc = pol.score
+    peak = (sc > z_min) & (sc >= np.roll(sc, 1, axis=1)) & (sc >= np.roll(sc, -1, axis=1))
+    ii, kk = np.nonzero(peak)
+    if len(ii) < 12:
+        return None
+    w = np.minimum(sc[ii, kk], cap)
+    hist = np.convolve(np.bincount(kk, weights=w, minlength=len(pol.radii)), np.ones(7), "same")
+    R0 = pol.radii[int(np.argmax(hist))]
+    r = pol.radii[kk]
+    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi[ii]), np.sin(pol.phi[ii])], -1)
+    near = np.abs(r - R0) <= max(8.0, 0.1 * R0)
+    for _ in range(2):
+        if np.count_nonzero(near) < 12:
+            return None
+        c, R, _ = circle_fit(pts[near], w[near])
+        if not np.isfinite(R):
+            return None
+        near = np.abs(np.hypot(*(pts - c).T) - R) <= max(5.0, 0.06 * R)
+    return c, R
