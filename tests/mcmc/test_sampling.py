@@ -12,6 +12,7 @@ from scipy import stats
 
 import bayescal as bc
 import bayescal.mcmc.sampling as sampling
+from bayescal.mcmc.steps import IMH_FITS
 
 
 def _room(n_points, seed=3, **kw):
@@ -330,8 +331,40 @@ def test_wall_shift_keeps_the_laser_points_pixel():
     assert np.all(np.abs(c[:, :2]) > 1e4)              # mm per rad: a tilt moves the walls
 
 
+def test_wall_turn_keeps_the_pixels_along_the_wall():
+    """Turning a wall by wall_turn . pose (and moving it by wall_shift . pose) keeps the
+    pixels of laser points away from its foot (fixed azimuth, +-0.3 rad off the normal) to
+    first order in the tilt, checked with the camera model; the shift alone does not. The
+    offsets' change of the cone along a wall is not linear: their turn removes only 70-90 %
+    of the shift-only change (bound 1/2)."""
+    from bayescal.mcmc.coordinates import wall_shift, wall_turn
+    from bayescal.sensor.camera import project_theta
+    from bayescal.sensor.laser import cone_height
+
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    d, a = np.array([1800.0, 2600.0]), np.array([0.7, -2.1])
+    c, k = wall_shift(np.r_[th, np.zeros(4)], d, a), wall_turn(np.r_[th, np.zeros(4)], d, a)
+
+    def pixels(pose, turn, t):
+        dist, azi = d + c @ pose, a + (k @ pose if turn else 0.0)
+        rho = dist / np.cos(t - azi)
+        x, y = rho * np.cos(t), rho * np.sin(t)
+        z = cone_height(np.r_[th, pose], x, y)[0]
+        return project_theta(th, np.stack([x, y, z], axis=-1))[0]
+
+    for off in (-0.3, 0.3):
+        for j, step in enumerate((1e-5, 1e-5, 1e-2, 1e-2)):
+            e = np.zeros(4)
+            e[j] = step
+            kept = (pixels(e, True, a + off) - pixels(-e, True, a + off)) / (2 * step)
+            moved = (pixels(e, False, a + off) - pixels(-e, False, a + off)) / (2 * step)
+            bound = 1e-3 if j < 2 else 0.5             # offsets: measured 0.11-0.28
+            assert np.max(np.abs(kept)) < bound * np.max(np.abs(moved)), (off, j, kept, moved)
+    assert np.all(np.abs(k[:, :2]) > 1.0)            # rad per rad: a tilt turns the walls
+
+
 def test_wall_coordinates_round_trip_and_unit_jacobian():
-    from bayescal.mcmc.coordinates import Coordinates, wall_shift
+    from bayescal.mcmc.coordinates import Coordinates, wall_shift, wall_turn
 
     th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
     d, a = np.array([1800.0, 2600.0, 2100.0]), np.array([0.7, -2.1, 2.5])
@@ -346,22 +379,33 @@ def test_wall_coordinates_round_trip_and_unit_jacobian():
     np.testing.assert_array_equal(np.delete(s, [11, 13, 15]), np.delete(plain, [11, 13, 15]))
     J = c.jacobian(psi)
     np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
+    turned = Coordinates(2000.0, len(psi) - 1, pose=True,
+                         walls=(11 + 2 * np.arange(3), d, a, 12 + 2 * np.arange(3)))
+    s = turned.to_sampling(psi)
+    np.testing.assert_allclose(turned.from_sampling(s), psi, rtol=1e-12)
+    np.testing.assert_allclose(s[12:18:2], psi[12:18:2] - wall_turn(psi, d, a) @ psi[7:11],
+                               rtol=1e-12)
+    J = turned.jacobian(psi)
+    np.testing.assert_allclose(turned.log_jacobian(psi), -np.log(abs(np.linalg.det(J))),
+                               rtol=1e-6)
     with pytest.raises(ValueError, match="pose=True"):
         Coordinates(2000.0, walls=(11 + 2 * np.arange(3), d, a))
 
 
 def test_misaligned_plan_likelihood_names_its_walls_distances():
-    """The indices the sampler's wall coordinates shift are the walls' distances in psi."""
+    """The indices the sampler's wall coordinates shift are the walls' distances and
+    azimuths in psi."""
     from bayescal.likelihood.plan_misaligned import plan_likelihood
 
     ds = bc.simulate_room(range_mm=2500, n_points=30, n_walls=6, sigma_px=0.2,
                           approx_error=0.03, approx_model="wall", rng=0)
     lik = plan_likelihood("misaligned", ds.pixels, ds.floor_plan, bc.Prior(), sigma_px=0.2)
-    idx, d, a = lik.wall_coordinates()
+    idx, d, a, idx_a = lik.wall_coordinates()
     psi = np.r_[bc.SensorParams.paper().to_identifiable(), np.zeros(4),
                 ds.floor_plan.param_nominal + np.arange(12.0)]
     walls = lik.split(psi)[1]
     np.testing.assert_array_equal(psi[idx], walls[:, 0])
+    np.testing.assert_array_equal(psi[idx_a], walls[:, 1])
     np.testing.assert_array_equal(np.c_[d, a], ds.floor_plan.param_nominal.reshape(-1, 2))
 
 
@@ -399,7 +443,44 @@ def test_sampler_falls_back_without_a_gradient():
     assert run["diagnostics"].converged
     run = sampling.sample_collapsed(lik, bc.Prior(), sol.theta, sol.cov_theta, sol.q, rng=0,
                                        min_ess=200, n_samples=100, progress=False)
-    assert "HMCMove" in run["diagnostics"].moves and run["diagnostics"].converged
+    # near-Gaussian: the first tuning round's independence proposal fits, HMC is left out
+    diag = run["diagnostics"]
+    assert diag.extra["tuning_imh_acceptance"][0] >= IMH_FITS
+    assert "HMCMove" not in diag.moves and diag.converged
+
+
+class _Banana:
+    """A strongly curved ridge in 4 dimensions (x2 -> x2 + 2 (x1^2 - 1)), with its gradient:
+    no Gaussian fits it, so the tuning must turn HMC on."""
+
+    has_gradient = True
+
+    def value_and_grad(self, x):
+        x = np.atleast_2d(np.asarray(x, float))
+        y = x.copy()
+        y[:, 1] = x[:, 1] - 2.0 * (x[:, 0] ** 2 - 1)
+        g = -y
+        g[:, 0] = -y[:, 0] + y[:, 1] * 4.0 * x[:, 0]
+        return -0.5 * np.sum(y * y, axis=1), g
+
+    def __call__(self, x):
+        return self.value_and_grad(x)[0]
+
+
+def test_tuning_turns_hmc_on_only_where_the_proposal_fits_badly():
+    from bayescal.mcmc.steps import tune_proposal
+
+    rng = np.random.default_rng(0)
+    target = _Banana()
+    out = tune_proposal(target, rng.standard_normal((12, 4)), np.zeros(4), np.eye(4), rng,
+                        n_steps=60, gradient=True)
+    assert out["imh_acceptance"][0] < IMH_FITS and out["use_hmc"]
+    normal = _Banana()
+    normal.value_and_grad = lambda x: (-0.5 * np.sum(np.atleast_2d(x) ** 2, axis=1),
+                                       -np.atleast_2d(x))
+    out = tune_proposal(normal, rng.standard_normal((12, 4)), np.zeros(4), np.eye(4), rng,
+                        n_steps=60, gradient=True)
+    assert out["imh_acceptance"][0] >= IMH_FITS and not out["use_hmc"]
 
 
 
