@@ -55,13 +55,11 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     pose_coordinates = True
 
     def wall_coordinates(self):
-        """psi's indices of the walls' distances, the plan's nominal distances and normal
-        azimuths, and psi's indices of the walls' azimuths, for the sampler's wall
-        coordinates (:func:`bayescal.mcmc.coordinates.wall_shift`,
-        :func:`~bayescal.mcmc.coordinates.wall_turn`)."""
+        """psi's indices of the walls' distances and the plan's nominal distances and
+        normal azimuths, for the sampler's wall coordinates
+        (:func:`bayescal.mcmc.coordinates.wall_shift`)."""
         nominal = self.plan.param_nominal
-        idx = self.n_geo + 2 * np.arange(self.n_walls)
-        return idx, nominal[0::2], nominal[1::2], idx + 1
+        return self.n_geo + 2 * np.arange(self.n_walls), nominal[0::2], nominal[1::2]
 
     def _height(self, theta, rho, r_t, x, y, dx, dy):
         """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""

@@ -16,8 +16,7 @@ from scipy.special import expit, logit
 
 from ..sensor.laser import cone_height
 
-__all__ = ["ring_scale", "depth_scale", "pose_shift", "wall_shift", "wall_turn", "Coordinates",
-           "log_jacobian",
+__all__ = ["ring_scale", "depth_scale", "pose_shift", "wall_shift", "Coordinates", "log_jacobian",
            "to_sampling", "from_sampling", "sampling_jacobian"]
 
 
@@ -118,31 +117,6 @@ def wall_shift(theta, d, a):
         return np.stack([c * g for g in dz[2:]], axis=-1)
 
 
-def wall_turn(theta, d, a):
-    """The walls' normal-azimuth turn per unit of the laser pose that keeps their pixels,
-    rad per unit pose, (..., W, 4).
-
-    Along a wall the cone's rise ``dz`` under a tilt changes linearly (slope ``g = d dz /
-    ds`` along the wall, ``s`` from its foot); each laser point slides along its camera ray
-    by ``-(rho / h) dz`` (:func:`wall_shift`), so the points of the wall ``n . p = d`` end on
-    the line of normal azimuth ``a + (d / h) g`` and distance ``d - (d / h) dz_foot``: the
-    wall turns as well as moving. The data pin ``a - wall_turn . pose``, and the factor
-    goes as ``1 / h`` (a ridge that bends with ``h``, as the distance's). ``g`` by central
-    differences of :func:`~bayescal.sensor.laser.cone_height`'s pose derivatives at the
-    foot +- ``1e-3 d`` along the wall (the derivatives are smooth: first order in the
-    step), on the aligned cone of ``theta``; it reads only ``h`` and ``beta``.
-    """
-    th = _aligned(theta)
-    d, a = np.asarray(d, float), np.asarray(a, float)
-    eps = 1e-3 * d
-    x0, y0, tx, ty = d * np.cos(a), d * np.sin(a), -np.sin(a), np.cos(a)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        hi = cone_height(th, x0 + eps * tx, y0 + eps * ty, geometry=True)[3][2:]
-        lo = cone_height(th, x0 - eps * tx, y0 - eps * ty, geometry=True)[3][2:]
-        c = d / (2.0 * eps * th[..., 5, None])
-        return np.stack([c * (p - m) for p, m in zip(hi, lo, strict=True)], axis=-1)
-
-
 class Coordinates:
     """The sampler's coordinates ``s`` of the globals ``psi``.
 
@@ -168,11 +142,9 @@ class Coordinates:
         sampled as the apparent principal point ``(u0, v0) + pose_shift . pose``
         (:func:`pose_shift`; needs a finite ``rho_ref``).
     walls : tuple of ndarray, optional
-        With ``pose`` on a floor plan: psi's indices of the walls' distances, the plan's
-        nominal distances and normal azimuths, each (W,), and optionally psi's indices of
-        the walls' azimuths. Each distance is sampled as ``d - wall_shift . pose``
-        (:func:`wall_shift`), each azimuth given as ``a - wall_turn . pose``
-        (:func:`wall_turn`).
+        With ``pose`` on a floor plan: psi's indices of the walls' distances, and the
+        plan's nominal distances and normal azimuths, each (W,). Each distance is
+        sampled as ``d - wall_shift . pose`` (:func:`wall_shift`).
     """
 
     def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, walls=None):
@@ -199,20 +171,13 @@ class Coordinates:
 
     def _wall_shift(self, psi):
         """``wall_shift . pose`` (..., W) of psi (its h, beta and pose)."""
-        d, a = self.walls[1:3]
+        _, d, a = self.walls
         return np.einsum("...ij,...j->...i", wall_shift(psi, d, a), psi[..., 7:11])
-
-    def _wall_turn(self, psi):
-        """``wall_turn . pose`` (..., W) of psi (its h, beta and pose)."""
-        d, a = self.walls[1:3]
-        return np.einsum("...ij,...j->...i", wall_turn(psi, d, a), psi[..., 7:11])
 
     def to_sampling(self, psi):
         """psi (..., d) -> s (..., d)."""
         s = np.array(psi, dtype=float)
         if self.walls is not None:
-            if len(self.walls) > 3:
-                s[..., self.walls[3]] -= self._wall_turn(s)
             s[..., self.walls[0]] -= self._wall_shift(s)
         if self.pose:
             s[..., 3:5] += self._shift(s)
@@ -235,8 +200,6 @@ class Coordinates:
             psi[..., 3:5] -= self._shift(psi)
         if self.walls is not None:
             psi[..., self.walls[0]] += self._wall_shift(psi)
-            if len(self.walls) > 3:
-                psi[..., self.walls[3]] += self._wall_turn(psi)
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):
