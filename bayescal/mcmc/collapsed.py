@@ -3,8 +3,9 @@
 :func:`sample_collapsed` samples ``psi = (theta, extras)`` of any likelihood that
 provides ``n``, ``extra_names``, ``log_prior_extra``, ``laplace``,
 ``point_log_density`` and ``points_3d`` (optionally ``grad_log_marginal``, which
-turns on the HMC move), from a MAP start and its Laplace covariance; the steps
-are in :mod:`bayescal.mcmc.steps`, the walkthrough in ``docs/bayes.md``
+allows the HMC move, used where the first tuning round finds the posterior far from
+Gaussian: :data:`~bayescal.mcmc.steps.IMH_FITS`), from a MAP start and its Laplace
+covariance; the steps are in :mod:`bayescal.mcmc.steps`, the walkthrough in ``docs/bayes.md``
 section 3. Callers: :func:`bayescal.mcmc.sampling.sample_posterior` (approximate
 points) and :func:`bayescal.mcmc.floorplan.sample_plan_posterior` (floor plan).
 """
