@@ -14,6 +14,7 @@ Usage::
     python studies/benchmark.py --quick              # fewer repeats (smoke test)
     python studies/benchmark.py --only project_triangulate --out /tmp/perf.md
     python studies/benchmark.py --only sampler --large-n 20000   # sampler rows only
+    python studies/benchmark.py --only targets       # the speed targets, PASS/FAIL
 
 An ``--only`` run keeps the other benchmarks' rows of the existing output file
 (and says from which run they come). The sampler rows live in
@@ -308,7 +309,7 @@ def bench_sampler(timer):
     N = 20 000."""
     from bench_sampler import sampler_rows
 
-    return [Row(*r) for r in sampler_rows(quick=timer.repeats < 7, large_n=LARGE_N)]
+    return [Row(*r) for r in sampler_rows(quick=timer.repeats < 7)]
 
 
 @benchmark("misaligned")
@@ -319,6 +320,27 @@ def bench_misaligned(timer):
     from bench_sampler import misaligned_rows
 
     return [Row(*r) for r in misaligned_rows(quick=timer.repeats < 7)]
+
+
+@benchmark("targets")
+def bench_targets(timer):
+    """The speed targets as same-run ratios, each marked PASS or FAIL: the aligned
+    posterior per 1000 ESS <= 15x the least squares of the same data (two rooms), and with
+    ``--large-n`` the sampler at that N (120 s, 0.5 GiB at 20 000); rows in
+    ``studies/bench_targets.py``."""
+    from bench_targets import target_rows
+
+    return [Row(*r) for r in target_rows(quick=timer.repeats < 7, plans=False,
+                                         large_n=LARGE_N)]
+
+
+@benchmark("targets_plan")
+def bench_targets_plan(timer):
+    """The misaligned floor-plan posterior per 1000 ESS <= 5x the aligned plan posterior on
+    the same pixels, two plans, PASS or FAIL (minutes per seed)."""
+    from bench_targets import plan_rows
+
+    return [Row(*r) for r in plan_rows((0,) if timer.repeats < 7 else (0, 1, 2))]
 
 
 #: N of the one large-N sampler row (set by --large-n; 0 = skipped)
@@ -438,14 +460,36 @@ LOAD_NOTE = [
 ]
 
 
+#: heading of the hand-written profile section, carried over verbatim by every run
+PROFILE_HEADING = "## Where the time goes"
+
+
+def hand_written(path, heading=PROFILE_HEADING):
+    """The lines of ``heading``'s section of an earlier ``path`` (up to the next ``## ``
+    heading), or [] : a section written by hand (profiles) that the writer keeps."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        return []
+    lines = path.read_text().splitlines()
+    if heading not in lines:
+        return []
+    start = lines.index(heading)
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+               len(lines))
+    return lines[start:end]
+
+
 def write_markdown(path, rows, facts, args, *, carried=False):
     """Write docs/performance.md; ``carried`` keeps the other benchmarks' rows of the
-    earlier file (for an ``--only`` run)."""
+    earlier file (for an ``--only`` run). The hand-written profile section
+    (:data:`PROFILE_HEADING`) of the earlier file is always kept."""
+    profile = hand_written(path)
     lines, source = carry_over(path, rows) if carried else ([_row_line(r) for r in rows], "")
     text = [
         "# Performance",
         "",
-        "Written by `studies/benchmark.py` (`make bench`); do not edit by hand. Each time is the",
+        "Written by `studies/benchmark.py` (`make bench`); do not edit by hand, except the",
+        f"section \"{PROFILE_HEADING[3:]}\", which the script keeps. Each time is the",
         "median over repeats of one call. The speed-up is measured against a baseline timed in",
         "the same run (a plain Python loop doing the same work, or the naive method the package",
         "replaces), so it is comparable across runs",
@@ -469,6 +513,7 @@ def write_markdown(path, rows, facts, args, *, carried=False):
         *TABLE_HEAD,
         *lines,
         "",
+        *profile,
         "## Adding a benchmark",
         "",
         "Write a function `f(timer) -> list[Row]` in `studies/benchmark.py`, decorate it with",
@@ -490,8 +535,9 @@ def main(argv=None):
                         help="run only this benchmark (repeatable)")
     argv = sys.argv[1:] if argv is None else list(argv)
     parser.add_argument("--large-n", type=int, default=0,
-                        help="also time the sampler once at this N in a child process "
-                        "(make bench: 20000, minutes; 0 = skipped)")
+                        help="also time the sampler once at this N in a child process, "
+                        "a row of the targets benchmark (make bench: 20000, minutes; "
+                        "0 = skipped)")
     args = parser.parse_args(argv)
     global LARGE_N
     LARGE_N = args.large_n

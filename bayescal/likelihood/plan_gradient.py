@@ -32,8 +32,9 @@ __all__ = ["PlanGradient"]
 class PlanGradient:
     """Mixin of :class:`~bayescal.likelihood.floorplan.PlanLikelihood`: ``grad_log_marginal``.
 
-    Having it turns the collapsed sampler's HMC move on
-    (:class:`~bayescal.mcmc.steps.CollapsedTarget`). The aligned plan likelihood does
+    Having it allows the collapsed sampler's HMC move
+    (:class:`~bayescal.mcmc.steps.CollapsedTarget`), which its first tuning round turns on
+    here (independence acceptance 8-12 %). The aligned plan likelihood does
     not take it (its independence proposal mixes in ~7 steps, cheaper than HMC:
     ``docs/floorplan.md`` section 10); the misaligned one does (section 13).
     """

@@ -3,8 +3,9 @@
 :func:`sample_collapsed` samples ``psi = (theta, extras)`` of any likelihood that
 provides ``n``, ``extra_names``, ``log_prior_extra``, ``laplace``,
 ``point_log_density`` and ``points_3d`` (optionally ``grad_log_marginal``, which
-turns on the HMC move), from a MAP start and its Laplace covariance; the steps
-are in :mod:`bayescal.mcmc.steps`, the walkthrough in ``docs/bayes.md``
+allows the HMC move, used where the first tuning round finds the posterior far from
+Gaussian: :data:`~bayescal.mcmc.steps.IMH_FITS`), from a MAP start and its Laplace
+covariance; the steps are in :mod:`bayescal.mcmc.steps`, the walkthrough in ``docs/bayes.md``
 section 3. Callers: :func:`bayescal.mcmc.sampling.sample_posterior` (approximate
 points) and :func:`bayescal.mcmc.floorplan.sample_plan_posterior` (floor plan).
 """
@@ -95,7 +96,8 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
     else:
         raise RuntimeError("could not place the walkers: the MAP start is outside the support")
     if n_tune <= 0:
-        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3}
+        return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3,
+                "imh_acceptance": [], "use_hmc": target.has_gradient}
     return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
                          gradient=target.has_gradient)
 
@@ -240,7 +242,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
                            what="Laplace covariance at the least-squares start")
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
     p0 = spread_walkers(fit["state"], target, fit["cov"], rng)
-    vg = target.value_and_grad if target.has_gradient else None
+    # HMC only where the first tuning round's independence proposal fitted badly
+    vg = target.value_and_grad if target.has_gradient and fit["use_hmc"] else None
     # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
     # (a likelihood whose posterior the independence proposal fits badly asks for more HMC)
     path = getattr(lik, "hmc_path", HMC_PATH)
@@ -260,11 +263,12 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
         moves=_moves_text(prod_moves),
         extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
+               "n_gradient_evaluations": int(target.n_grad_calls),
+               "tuning_imh_acceptance": fit["imh_acceptance"],
                "hmc_step_size": fit["step_size"], "stopped": info.get("stopped")})
     psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
-    # ~5e5 (sample, point) pairs per vectorized call bound the temporaries' memory
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 2,
-                             batch=max(1, 500_000 // max(lik.n, 1)))
+    # cache-sized batches of (sample, point) pairs (point_draws.DRAW_ELEMENTS)
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 1)
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 

@@ -57,7 +57,20 @@ class IndependenceMove(MHMove):
             raise ValueError("cov must be symmetric positive definite") from None
         self._Linv = np.linalg.inv(self._L)
         self.mean, self.df, self.ndim_ = mean, float(df), ndim
+        self.n_proposed, self.n_accepted = 0, 0
         super().__init__(self._propose, ndim=ndim)
+
+    @property
+    def acceptance(self):
+        """Fraction of this move's proposals accepted so far (NaN before any)."""
+        return self.n_accepted / self.n_proposed if self.n_proposed else float("nan")
+
+    def propose(self, model, state):
+        """emcee's Metropolis-Hastings step, counting this move's acceptance."""
+        state, accepted = super().propose(model, state)
+        self.n_proposed += len(accepted)
+        self.n_accepted += int(np.sum(accepted))
+        return state, accepted
 
     def log_q(self, x):
         """Log density of the proposal (up to a constant), x shape (..., ndim)."""

@@ -12,6 +12,7 @@ from scipy import stats
 
 import bayescal as bc
 import bayescal.mcmc.sampling as sampling
+from bayescal.mcmc.steps import IMH_FITS
 
 
 def _room(n_points, seed=3, **kw):
@@ -399,7 +400,44 @@ def test_sampler_falls_back_without_a_gradient():
     assert run["diagnostics"].converged
     run = sampling.sample_collapsed(lik, bc.Prior(), sol.theta, sol.cov_theta, sol.q, rng=0,
                                        min_ess=200, n_samples=100, progress=False)
-    assert "HMCMove" in run["diagnostics"].moves and run["diagnostics"].converged
+    # near-Gaussian: the first tuning round's independence proposal fits, HMC is left out
+    diag = run["diagnostics"]
+    assert diag.extra["tuning_imh_acceptance"][0] >= IMH_FITS
+    assert "HMCMove" not in diag.moves and diag.converged
+
+
+class _Banana:
+    """A strongly curved ridge in 4 dimensions (x2 -> x2 + 6 (x1^2 - 1)), with its gradient:
+    no Gaussian fits it, so the tuning must turn HMC on."""
+
+    has_gradient = True
+
+    def value_and_grad(self, x):
+        x = np.atleast_2d(np.asarray(x, float))
+        y = x.copy()
+        y[:, 1] = x[:, 1] - 6.0 * (x[:, 0] ** 2 - 1)
+        g = -y
+        g[:, 0] = -y[:, 0] + y[:, 1] * 12.0 * x[:, 0]
+        return -0.5 * np.sum(y * y, axis=1), g
+
+    def __call__(self, x):
+        return self.value_and_grad(x)[0]
+
+
+def test_tuning_turns_hmc_on_only_where_the_proposal_fits_badly():
+    from bayescal.mcmc.steps import tune_proposal
+
+    rng = np.random.default_rng(0)
+    target = _Banana()
+    out = tune_proposal(target, rng.standard_normal((12, 4)), np.zeros(4), np.eye(4), rng,
+                        n_steps=60, gradient=True)
+    assert out["imh_acceptance"][0] < IMH_FITS and out["use_hmc"]
+    normal = _Banana()
+    normal.value_and_grad = lambda x: (-0.5 * np.sum(np.atleast_2d(x) ** 2, axis=1),
+                                       -np.atleast_2d(x))
+    out = tune_proposal(normal, rng.standard_normal((12, 4)), np.zeros(4), np.eye(4), rng,
+                        n_steps=60, gradient=True)
+    assert out["imh_acceptance"][0] >= IMH_FITS and not out["use_hmc"]
 
 
 

@@ -1,0 +1,161 @@
+"""Speed-target rows of the benchmark (``studies/benchmark.py --only targets --only
+targets_plan``).
+
+Each row is a same-run ratio checked against its target and marked PASS or FAIL:
+
+* **aligned posterior / least squares**: ``bc.sample_posterior`` (default settings,
+  time per 1000 honest ESS, median over sampler seeds) over ``bc.calibrate_simultaneous``
+  on the same data (median of 5 calls), target <= 15x, on two rooms (5000 mm, 5 %
+  z-unknown points; 1000 mm, 3 % z-unknown points);
+* **misaligned plan posterior / aligned plan posterior**: the misaligned model on a floor
+  plan (N = 300, 3 % plan, a tilted and offset sensor) over the aligned model on the same
+  pixels, both per 1000 honest ESS, target <= 5x, on two plans (the tilt and offset of
+  the misaligned rows, and (1, 0.5) deg, (3, -2) mm on another room);
+* **N = 20 000** (``--large-n``): the wall time of the call <= 120 s and its peak
+  resident memory <= 0.5 GiB, in a spawned child process.
+
+The baseline and the candidate of a row are timed alternately, seed by seed, so that a
+change of the machine's load hits both. Rows are plain tuples ``(name, setting, seconds,
+ratio, notes)`` (``ratio`` = baseline time / candidate time, as in the other rows; the
+cost ratio checked against the target is its inverse, in the notes). Imports only the
+public API of bayescal.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+import warnings
+
+import numpy as np
+
+import bayescal as bc
+
+__all__ = ["target_rows", "verdict"]
+
+NAME = "speed target"
+#: the plan rows' benchmark name (a separate --only run must not replace the others)
+PLAN_NAME = "speed target, plan"
+#: targets: posterior per 1000 ESS over the least squares; misaligned over aligned plan
+LSQ_TARGET, PLAN_TARGET = 15.0, 5.0
+#: the N = 20 000 call: wall time (s) and peak resident memory (GiB)
+LARGE_N_SECONDS, LARGE_N_GIB = 120.0, 0.5
+
+#: rooms of the aligned rows: label, simulate_room keywords
+ROOMS = (
+    ("N=580, 5000 mm, fig9 (z unknown) 5 %, 0.1 px",
+     dict(range_mm=5000, n_points=580, sigma_px=0.1, approx_error=0.05, approx_model="fig9",
+          rng=3)),
+    ("N=580, 1000 mm, fig9 (z unknown) 3 %, 0.1 px",
+     dict(range_mm=1000, n_points=580, sigma_px=0.1, approx_error=0.03, approx_model="fig9",
+          rng=5)),
+)
+#: plans of the misaligned rows: label, simulate_room keywords
+PLANS = (
+    ("N=300, 2500 mm, 3 % plan, tilt (1, 0.5) deg, offset (5, -5) mm",
+     dict(range_mm=2500, n_points=300, n_walls=6, sigma_px=0.2, approx_error=0.03,
+          approx_model="wall", tilt=tuple(np.radians((1.0, 0.5))), offset=(5.0, -5.0), rng=0)),
+    ("N=300, 2500 mm, 3 % plan, tilt (1, 0.5) deg, offset (3, -2) mm, another room",
+     dict(range_mm=2500, n_points=300, n_walls=6, sigma_px=0.2, approx_error=0.03,
+          approx_model="wall", tilt=tuple(np.radians((1.0, 0.5))), offset=(3.0, -2.0), rng=7)),
+)
+
+
+def verdict(cost_ratio, target):
+    """``"PASS"`` when the cost ratio is at most the target, else ``"FAIL"``."""
+    return "PASS" if np.isfinite(cost_ratio) and cost_ratio <= target else "FAIL"
+
+
+def _posterior(pixels, scene, seed, **kw):
+    """One ``bc.sample_posterior`` call: seconds per 1000 ESS and the run's facts."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        post = bc.sample_posterior(pixels, scene, rng=seed, progress=False, **kw)
+        t = time.perf_counter() - t0
+    ess = float(np.min(post.ess))
+    return 1000.0 * t / ess, (t, post.converged, ess, float(np.max(post.tau)), post.n_steps)
+
+
+def _facts(facts):
+    conv = sum(f[1] for f in facts)
+    return (f"median wall {statistics.median(f[0] for f in facts):.1f} s; {conv}/{len(facts)} "
+            f"converged; min ESS {min(f[2] for f in facts):.0f}, max tau "
+            f"{max(f[3] for f in facts):.1f}, steps {'/'.join(str(f[4]) for f in facts)}")
+
+
+def _lsq_seconds(ds, sigma_scene, repeats=5):
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=ds.sigma_px,
+                                  sigma_scene=sigma_scene)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def aligned_rows(seeds):
+    """Aligned posterior per 1000 ESS against the least squares of the same data."""
+    rows = []
+    for label, spec in ROOMS:
+        ds = bc.simulate_room(**spec)
+        sig = np.maximum(ds.sigma_scene, 1.0)
+        lsq, per_k, facts = [], [], []
+        for seed in seeds:                        # alternate: a load change hits both
+            lsq.append(_lsq_seconds(ds, sig))
+            k, f = _posterior(ds.pixels, ds.approx_points, seed, sigma_px=ds.sigma_px,
+                              sigma_scene=sig)
+            per_k.append(k)
+            facts.append(f)
+        base, cand = statistics.median(lsq), statistics.median(per_k)
+        cost = cand / base
+        rows += [(NAME, f"least squares, {label} (calibrate_simultaneous)", base, 1.0,
+                  f"baseline; median of 5 calls per seed, median over {len(seeds)} seeds"),
+                 (NAME, "aligned posterior per 1000 ESS, same data", cand, base / cand,
+                  f"cost {cost:.1f}x the least squares (target <= {LSQ_TARGET:g}x): "
+                  f"**{verdict(cost, LSQ_TARGET)}**; " + _facts(facts))]
+    return rows
+
+
+def plan_rows(seeds):
+    """Misaligned plan posterior per 1000 ESS against the aligned one on the same pixels."""
+    rows = []
+    for label, spec in PLANS:
+        ds = bc.simulate_room(**spec)
+        al, mis, fa, fm = [], [], [], []
+        for seed in seeds:
+            k, f = _posterior(ds.pixels, ds.floor_plan, seed, sigma_px=ds.sigma_px)
+            al.append(k)
+            fa.append(f)
+            k, f = _posterior(ds.pixels, ds.floor_plan, seed, sigma_px=ds.sigma_px,
+                              model="misaligned")
+            mis.append(k)
+            fm.append(f)
+        base, cand = statistics.median(al), statistics.median(mis)
+        cost = cand / base
+        rows += [(PLAN_NAME, f"aligned plan posterior per 1000 ESS, {label}", base, 1.0,
+                  "baseline (biased on this sensor); " + _facts(fa)),
+                 (PLAN_NAME, "misaligned plan posterior per 1000 ESS, same pixels", cand,
+                  base / cand, f"cost {cost:.1f}x the aligned plan posterior (target <= "
+                  f"{PLAN_TARGET:g}x): **{verdict(cost, PLAN_TARGET)}**; " + _facts(fm))]
+    return rows
+
+
+def large_n_check(wall_s, peak_gib):
+    """The N = 20 000 verdict text: wall time and peak memory against their targets."""
+    ok = wall_s <= LARGE_N_SECONDS and peak_gib <= LARGE_N_GIB
+    return (f"targets <= {LARGE_N_SECONDS:g} s and <= {LARGE_N_GIB:g} GiB: "
+            f"**{'PASS' if ok else 'FAIL'}**")
+
+
+def target_rows(*, quick=False, plans=True, large_n=0):
+    """All target rows (one seed with ``quick``; the plan rows only with ``plans``; the
+    large-N row when ``large_n`` > 0, its ratio column empty: its targets are absolute)."""
+    from bench_sampler import large_n_row
+
+    seeds = (0,) if quick else (0, 1, 2)
+    rows = aligned_rows(seeds) + (plan_rows(seeds) if plans else [])
+    if large_n:
+        name, setting, per_k, _, notes = large_n_row(float("nan"), large_n)
+        rows.append((NAME, setting, per_k, float("nan"), notes.replace("vs naive N=40; ", "")))
+    return rows
