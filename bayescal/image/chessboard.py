@@ -22,7 +22,7 @@ import os
 import numpy as np
 
 from .read import as_gray, read_image
-from .views import BoardView, board_points
+from .views import BoardView, board_points, board_shape
 
 __all__ = ["find_chessboard", "order_corners"]
 
@@ -38,16 +38,6 @@ def _cv2():
             "(installs opencv-contrib-python-headless)"
         ) from None
     return cv2
-
-
-def _board_pair(board):
-    try:
-        nx, ny = (int(b) for b in board)
-    except (TypeError, ValueError):
-        raise TypeError(f"board must be a pair of ints (columns, rows), got {board!r}") from None
-    if nx < 2 or ny < 2:
-        raise ValueError(f"board must have at least 2 x 2 inner corners, got {board!r}")
-    return nx, ny
 
 
 def _load(image):
@@ -84,7 +74,7 @@ def order_corners(pixels, board, *, center):
     ndarray, shape (columns * rows, 2)
         The corners, reversed if the last row is farther from ``center`` than the first.
     """
-    nx, ny = _board_pair(board)
+    nx, ny = board_shape(board)
     px = np.asarray(pixels, dtype=float).reshape(ny, nx, 2)
     c = np.asarray(center, dtype=float)
     first = np.linalg.norm(px[0] - c, axis=-1).mean()
@@ -169,7 +159,7 @@ def find_chessboard(image, board=(8, 6), square=42.0, *, method="classic", windo
     FileNotFoundError, ValueError
         If the image cannot be read or is not an image.
     """
-    nx, ny = _board_pair(board)
+    nx, ny = board_shape(board)
     points = board_points((nx, ny), square)
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")

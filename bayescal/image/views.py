@@ -15,7 +15,18 @@ import numpy as np
 
 from .._validation import as_pixels, as_points
 
-__all__ = ["BoardView", "board_points"]
+__all__ = ["BoardView", "board_points", "board_shape"]
+
+
+def board_shape(board):
+    """``(columns, rows)`` of inner corners as ints, checked (at least 2 x 2)."""
+    try:
+        nx, ny = (int(b) for b in board)
+    except (TypeError, ValueError):
+        raise TypeError(f"board must be a pair of ints (columns, rows), got {board!r}") from None
+    if nx < 2 or ny < 2:
+        raise ValueError(f"board must have at least 2 x 2 inner corners, got {board!r}")
+    return nx, ny
 
 
 def board_points(board, square):
@@ -34,12 +45,7 @@ def board_points(board, square):
         Corner positions in mm, row by row (x fastest), z = 0; the order in which
         OpenCV's ``findChessboardCorners`` lists them.
     """
-    try:
-        nx, ny = (int(b) for b in board)
-    except (TypeError, ValueError):
-        raise TypeError(f"board must be a pair of ints (columns, rows), got {board!r}") from None
-    if nx < 2 or ny < 2:
-        raise ValueError(f"board must have at least 2 x 2 inner corners, got {board!r}")
+    nx, ny = board_shape(board)
     s = float(square)
     if not np.isfinite(s) or s <= 0:
         raise ValueError(f"square must be a positive size in mm, got {square!r}")
