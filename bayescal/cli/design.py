@@ -37,10 +37,11 @@ def read_nominal(path):
     Raises
     ------
     UsageError
-        Not a JSON object, an unknown name, or a value that is not a finite number.
+        Not a JSON object, an unknown name, a value that is not a finite number, or
+        values no sensor has (e.g. ``h <= 0``).
     """
     from ..io.data import read_json
-    from ..sensor.parameters import PARAM_NAMES
+    from ..sensor.parameters import PARAM_NAMES, SensorParams
 
     if path is None:
         return {}
@@ -62,6 +63,11 @@ def read_nominal(path):
         if not np.isfinite(v) or isinstance(value, bool):
             raise UsageError(f"--nominal {path}: {name} = {value!r}; expected a finite number")
         out[name] = v
+    try:                                    # a valid sensor with the paper's values beside them
+        paper = dict(zip(PARAM_NAMES, SensorParams.paper().to_array(), strict=True))
+        SensorParams(**{**paper, **out})
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"--nominal {path}: {exc}") from None
     return out
 
 

@@ -29,6 +29,7 @@ from ..errors import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_USAGE,
+    ExtractionError,
     Failure,
     InputError,
     UsageError,
@@ -210,6 +211,9 @@ def main(argv=None):
     except Failure as exc:
         print(f"bayescal: failed: {op.cli_words(exc)}", file=stderr)
         return EXIT_FAILED
+    except ExtractionError as exc:          # no plausible laser ring in an image: bad input
+        print(f"bayescal: error: {exc.reason}. {op.EXTRACTION_ADVICE}", file=stderr)
+        return EXIT_USAGE
     except (ArithmeticError, ValueError) as exc:
         # numpy's LinAlgError is a ValueError; any other ValueError is a bug to show
         if type(exc).__name__ != "LinAlgError" and not isinstance(exc, ArithmeticError):

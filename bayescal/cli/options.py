@@ -25,9 +25,13 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
            "SIMULATE_OPTIONS", "CALIBRATE_OPTIONS", "RECONSTRUCT_OPTIONS", "REPORT_OPTIONS",
            "STUDY_OPTIONS", "DEMO_OPTIONS", "EXTRACT_OPTIONS", "METHODS", "LASER_MODELS",
            "finite_float", "board_size", "CALIBRATE_CAMERA_OPTIONS", "CAMERA_NOISE",
-           "cli_words", "method_option"]
+           "cli_words", "method_option", "EXTRACTION_ADVICE"]
 
 METHODS = ("sequential", "simultaneous", "bayes")
+#: what to try when the extractor finds no plausible laser ring, in the command's options
+EXTRACTION_ADVICE = ("Try a laser-off image of the same view (--background IMAGE), the centre "
+                     "of the mirror's image (--center U V), or the laser's colour channel "
+                     "(--channel 0/1/2)")
 #: other names ``--method`` takes: the simultaneous method is a least-squares fit
 _METHOD_ALIASES = {"lsq": "simultaneous", "least-squares": "simultaneous",
                    "least_squares": "simultaneous", "ls": "simultaneous"}

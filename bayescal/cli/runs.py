@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..sensor.pose import POSE_NAMES
-from .options import cli_words
+from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
 
 __all__ = ["run_simulate", "run_extract", "write_simulation", "run_calibrate", "calibrate_result",
@@ -131,10 +131,7 @@ def run_extract(job, folder):
         lp = extract_laser(job.image, background=job.background, center=job.center,
                            along_sd=job.along_sd)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
-        raise UsageError(f"{job.image_path}: {exc.reason}. Try a laser-off image of the same "
-                         "view (--background IMAGE), the centre of the mirror's image "
-                         "(--center U V), or the laser's colour channel (--channel 0/1/2)"
-                         ) from None
+        raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
     p = folder.path
     write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
                        image_size=job.image.shape[1::-1])

@@ -121,8 +121,8 @@ def restricted_loglik(lik, gram, eta, model):
     s2, t2 = _noise_values(eta, lik.K, model)
     Ninv, logdet = lik.noise_factors(s2, t2)
     P = lik.weighted(*gram, s2, t2, Ninv)
-    S, rhs, Cinv, B, gp = _schur(P)
     try:
+        S, rhs, Cinv, B, gp = _schur(P)
         quad = (P[:, 11, 11].sum() - np.einsum("ki,kij,kj->", gp, Cinv, gp)
                 - rhs @ np.linalg.solve(S, rhs))
         ld = np.sum(np.linalg.slogdet(P[:, 5:11, 5:11])[1]) + np.linalg.slogdet(S)[1]
@@ -256,17 +256,25 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     lik = BoardLikelihood(views, degree=degree)
     fixed = None
     if init is not None:
+        if isinstance(init, dict) and not set(CAMERA_NAMES) <= set(init):
+            raise ValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
         fixed = np.array([init[n] for n in CAMERA_NAMES] if isinstance(init, dict) else init,
                          float)
         if fixed.shape != (5,) or not np.all(np.isfinite(fixed)):
             raise ValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
-    k0, poses0 = start_camera(lik, size, signs=signs, fixed=fixed)
-    if noise == "view-systematic" and estimator == "weighted":
-        k, poses, eta_w, P = _fit_noise_loop(lik, k0, poses0, "per-view", max_outer)
-        eta, _ = estimate_noise(lik, k, poses, np.append(eta_w, np.log(0.1)), noise)
-        return _result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w)
-    k, poses, eta, P = _fit_noise_loop(lik, k0, poses0, noise, max_outer)
-    return _result(lik, k, poses, eta, P, noise, size)
+    try:
+        k0, poses0 = start_camera(lik, size, signs=signs, fixed=fixed)
+        if noise == "view-systematic" and estimator == "weighted":
+            k, poses, eta_w, P = _fit_noise_loop(lik, k0, poses0, "per-view", max_outer)
+            eta, _ = estimate_noise(lik, k, poses, np.append(eta_w, np.log(0.1)), noise)
+            return _result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w)
+        k, poses, eta, P = _fit_noise_loop(lik, k0, poses0, noise, max_outer)
+        return _result(lik, k, poses, eta, P, noise, size)
+    except np.linalg.LinAlgError as exc:    # a singular normal matrix: the views are degenerate
+        raise DegenerateInputError(
+            f"the {lik.K} views do not determine the camera (a singular normal matrix: {exc}); "
+            "use more views, boards at several distances and tilts, or check the corners"
+        ) from None
 
 
 def sandwich_covariance(lik, k, poses, s2w, s2, t2):

@@ -240,8 +240,8 @@ def _read_npz(path, required, optional):
         bad = np.isnan(a) | (np.isinf(a) if not sigma else (a < MIN_SD))
         if np.any(bad):
             k = int(np.argmax(bad))
-            what = ("a positive number in mm (or inf for 'no information')" if sigma
-                    else "a finite number")
+            what = (f"a number of at least {MIN_SD:g} mm (or inf for 'no information')"
+                    if sigma else "a finite number")
             raise table.error(k, c, f"{_fmt(float(a[k]))} is not allowed; expected {what}")
     return table
 

@@ -125,8 +125,11 @@ def _start(views, noise, lsq, fit_options):
     logcov = None if ncov is None else ncov / np.outer(x, x)
     if logcov is None or not (np.all(np.isfinite(logcov))
                               and np.all(np.linalg.eigvalsh(logcov) > 0)):
-        # var(log sigma) ~ 1 / (2 dof) for a view of 2M - 6 degrees of freedom
-        logcov = np.diag(1.0 / (2.0 * np.maximum(lik.n_obs[:n] - 6, 1)))
+        # var(log sigma) ~ 1 / (2 dof): a view's 2M - 6 degrees of freedom (all views' less
+        # the intrinsics for one level); tau's, one per view
+        dof = (np.maximum(lik.n_obs - 6, 1) if per_view
+               else [max(int(np.sum(lik.n_obs)) - 5 - 6 * lik.K, 1)])
+        logcov = np.diag(1.0 / (2.0 * np.r_[dof, [lik.K] if systematic else []]))
     cov[5:, 5:] = logcov
     return cam, target, np.concatenate([cam.k, eta]), spd_covariance(cov)
 

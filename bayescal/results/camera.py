@@ -23,6 +23,7 @@ File format: one JSON object with ``"format": "bayescal-camera"``.
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 
 import numpy as np
@@ -232,11 +233,14 @@ class CameraResult:
                    diagnostics=None if diag is None else ChainDiagnostics.from_dict(diag))
 
     def save(self, path, *, overwrite=False):
-        """Write the result as JSON to ``path``; refuses to overwrite unless asked."""
+        """Write the result as JSON to ``path`` (atomically: a temporary file, then renamed);
+        refuses to overwrite unless asked."""
         path = pathlib.Path(path)
         if path.exists() and not overwrite:
             raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        path.write_text(json.dumps(self.to_dict()))
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_dict()), encoding="utf-8")
+        os.replace(tmp, path)
         return path
 
     def __repr__(self):

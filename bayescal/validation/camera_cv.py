@@ -34,17 +34,18 @@ def cv_directions(result, *, radii=(150.0, 200.0, 250.0, 300.0), n_azimuth=16):
 
 
 def all_splits(n_views, *, max_splits=None):
-    """Every split of ``n_views`` into two halves (the first holds view 0), sizes differ by
-    at most one; ``max_splits`` keeps the first ones."""
+    """Every split of ``n_views`` into two halves, sizes differing by at most one (with an
+    even number, each split once: the first half holds view 0); ``max_splits`` keeps the
+    first ones (generated lazily: 30 views have ~1.5e8 splits)."""
     idx = range(n_views)
-    out = []
-    for c in itertools.combinations(idx, n_views // 2):
-        a = list(c)
-        b = [i for i in idx if i not in c]
-        if n_views % 2 == 0 and 0 not in a:
-            continue
-        out.append((a, b))
-    return out if max_splits is None else out[:max_splits]
+
+    def splits():
+        for c in itertools.combinations(idx, n_views // 2):
+            if n_views % 2 == 0 and 0 not in c:
+                continue
+            yield list(c), [i for i in idx if i not in c]
+
+    return list(itertools.islice(splits(), max_splits))
 
 
 def halves_chi2(views, splits=None, *, directions=None, **fit_options):

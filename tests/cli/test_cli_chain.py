@@ -158,6 +158,11 @@ def test_any_camera_size(tmp_path):
     (tmp_path / "bad.json").write_text('{"u0": 641, "focal": 3}')
     r = run("calibrate", "sim/laser.csv", "--nominal", "bad.json", "--out", "x", cwd=tmp_path)
     assert r.returncode == 2 and "unknown parameter(s) focal" in r.stderr
+    # a value no sensor has: exit 2 naming it, not a traceback
+    (tmp_path / "neg.json").write_text('{"h": -5}')
+    r = run("calibrate", "sim/laser.csv", "--nominal", "neg.json", "--out", "y", cwd=tmp_path)
+    assert r.returncode == 2 and "--nominal" in r.stderr and "h must be positive" in r.stderr
+    assert not (tmp_path / "y").exists()
 
 
 def test_simulate_floors_scene_sd_and_tiny_sds_are_refused(tmp_path):

@@ -81,6 +81,8 @@ def test_bad_arguments_are_named():
         bc.calibrate_camera(views, noise="white")
     with pytest.raises(ValueError, match="init"):
         bc.calibrate_camera(views, init=[1.0, 2.0])
+    with pytest.raises(ValueError, match="init"):
+        bc.calibrate_camera(views, init={"xi": 1.0})
     assert DegenerateInputError  # raised by the start when no pose fits (named views)
 
 
@@ -105,3 +107,13 @@ def test_sandwich_covariance_matches_dense_algebra(rng):
     Hi = np.linalg.inv(H)
     np.testing.assert_allclose(sandwich_covariance(lik, k, poses, s2w, s2, t2),
                                (Hi @ M @ Hi)[:5, :5], rtol=1e-8)
+
+
+def test_splits_are_generated_lazily():
+    from bayescal.validation.camera_cv import all_splits
+
+    splits = all_splits(5)
+    assert len(splits) == 10 and all(len(a) + len(b) == 5 for a, b in splits)
+    assert len(all_splits(4)) == 3 and all(0 in a for a, _ in all_splits(4))
+    # 30 views have ~1.5e8 splits: the first ten without building them all
+    assert all_splits(30, max_splits=10)[0][0] == list(range(15))
