@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
+from ..io.tables import image_size_line
 from ..sensor.pose import POSE_NAMES
 from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
@@ -47,7 +48,7 @@ def write_simulation(folder, ds, *, seed, image_size=(800, 600)):
     pose = "" if ds.laser.is_aligned else (
         f", laser cone tilted ({np.degrees(ds.laser.tilt_x):g}, {np.degrees(ds.laser.tilt_y):g})"
         f" deg, offset ({ds.laser.offset_x:g}, {ds.laser.offset_y:g}) mm")
-    note = (f"image_size: {int(image_size[0])}x{int(image_size[1])}\n"
+    note = (f"{image_size_line(image_size)}\n"
             f"bayescal simulate: range {ds.range_mm:g} mm, {ds.n_points} points, sigma_px "
             f"{ds.sigma_px:g}, approx_error {ds.approx_error:g} ({ds.approx_model}){pose}, "
             f"seed {seed}\n"
@@ -154,7 +155,7 @@ def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_
             "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
             "noise sd; flagged: 1 = likely distractor, left out by calibrate" + extra_note)
     if image_size is not None:
-        note = f"image_size: {int(image_size[0])}x{int(image_size[1])}\n" + note
+        note = f"{image_size_line(image_size)}\n" + note
     px, cov = lp.pixels[k], lp.covariance[k]
     _write_csv(path, {
         "u": px[:, 0], "v": px[:, 1], "cov_uu": cov[:, 0, 0], "cov_uv": cov[:, 0, 1],

@@ -21,7 +21,8 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["Table", "read_table", "drop_flagged", "parse_image_size", "LASER_COLUMNS",
-           "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY"]
+           "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY",
+           "image_size_line"]
 
 LASER_COLUMNS = ("u", "v", "x", "y", "z")
 SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
@@ -30,6 +31,12 @@ PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
 #: the comment line that carries the image size: ``# image_size: 1280x1024`` (px)
 IMAGE_SIZE_KEY = "image_size"
 _META_RE = re.compile(r"^#\s*image_size\s*[:=]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
+
+
+def image_size_line(size):
+    """The comment line (without its ``#``) that carries ``size = (width, height)`` px."""
+    return f"{IMAGE_SIZE_KEY}: {int(size[0])}x{int(size[1])}"
+
 #: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
 #: far below any approximate point's error; smaller values are numerical accidents
 MIN_SD = 1e-9
@@ -130,7 +137,7 @@ def _meta(path, text):
         if w <= 0 or h <= 0:
             raise InputError(f"{path}, line {lineno}: image size {w}x{h}; expected a "
                              "positive width and height in px", path=str(path), line=lineno)
-        meta["image_size"] = (w, h)
+        meta[IMAGE_SIZE_KEY] = (w, h)
     return meta
 
 
