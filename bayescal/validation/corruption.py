@@ -81,12 +81,6 @@ class Corruption:
     plan: object = None
 
 
-def _far_rows(pts, k, rng, min_rho=0.0):
-    rho = np.hypot(pts[:, 0], pts[:, 1])
-    cand = np.flatnonzero(rho > min_rho)
-    return np.sort(rng.choice(cand, size=k, replace=False))
-
-
 def _radial(pixels, center):
     d = pixels - center
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
