@@ -223,6 +223,8 @@ class CalibrateJob:
             camera, camera_size = read_camera(o["camera"])
             o["image_size"] = camera_size or o["image_size"]
         data, calib, plan, size = cls._read(o, given)
+        if camera is not None and camera_size:     # say where the size came from
+            size = (size[0], f"--camera {o['camera']}")
         nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
                                                     data=data, plan=plan, with_derived=True)
         if camera is not None:              # its intrinsics: the nominal camera and prior
