@@ -182,12 +182,6 @@ def points_csv(path, points, cov, outlier_prob=None, *, first=None):
     return path
 
 
-def _accepts(func, name):
-    import inspect
-
-    return name in inspect.signature(func).parameters
-
-
 def _bayes(job):
     """The posterior of a bayes job; returns ``(posterior, failure message or None)``."""
     import bayescal as bc
@@ -197,11 +191,11 @@ def _bayes(job):
     data, kw = job.data, {}
     if job.max_steps is not None:         # asked for a longer run: no time budget
         kw["max_steps"] = job.max_steps
-        if job.plan is None and _accepts(bc.sample_posterior, "budget"):
+        if job.plan is None:
             kw["budget"] = None
     if job.nominal != SensorParams.paper():
         kw["init"] = job.nominal
-    if not job.outliers and _accepts(bc.sample_posterior, "outliers"):
+    if not job.outliers:
         kw["outliers"] = False
     if uses_pixel_cov(job.method, data, job.plan):
         kw["pixel_cov"] = data.pixel_cov

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..errors import DegenerateInputError
-from ..image.views import BoardView
+from ..image.views import as_views
 from ..likelihood.boards import NOISE_MODELS, BoardLikelihood
 from ..results.camera import CameraResult
 from ..sensor.board import CAMERA_NAMES
@@ -166,16 +166,6 @@ def _noise_hessian(lik, gram, eta, model, h=1e-3):
     return H
 
 
-def _check_views(views):
-    if isinstance(views, BoardView):
-        views = [views]
-    views = list(views)
-    if not views or not all(isinstance(v, BoardView) for v in views):
-        raise TypeError("views must be a non-empty sequence of BoardView, got "
-                        f"{type(views).__name__}")
-    return views
-
-
 def _image_size(views, image_size):
     if image_size is not None:
         size = tuple(int(s) for s in image_size)
@@ -247,7 +237,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     -------
     CameraResult
     """
-    views = _check_views(views)
+    views = as_views(views)
     if noise not in NOISE_MODELS:
         raise ValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
     if estimator not in ("weighted", "gls"):

@@ -37,7 +37,7 @@ from ..results.calibration import (
 )
 from ..scene.simulate import CalibrationData, Dataset
 from ..sensor.laser import triangulate, triangulate_plane
-from ..sensor.parameters import PARAM_NAMES, SensorParams, camera_moments
+from ..sensor.parameters import PARAM_NAMES, SensorParams, camera_moments, camera_whitener
 from ..sensor.pose import POSE_NAMES as LASER_POSE_NAMES
 from ..sensor.pose import LaserPose
 from .sequential_stages import (
@@ -382,7 +382,7 @@ def _finish_cone(s1, C1, theta, P, info, *, method, max_nfev):
     J2 /= np.sqrt(w)[:, None]          # whitened up to the common factor 1 / sigma
     Jall = np.vstack([np.column_stack([J1, np.zeros((len(J1), p2))]), J2])
     if info["camera"] is not None:           # the camera's information, in the same units
-        W = np.linalg.inv(np.linalg.cholesky(info["camera"][1]))
+        W = camera_whitener(info["camera"][1])
         Jall = np.vstack([Jall, np.pad(info["sigma"] * W, ((0, 0), (0, 6 + p2)))])
     J8 = np.column_stack([Jall[:, keep[:7]] @ T, Jall[:, 5:11], Jall[:, 13:]])
     report = identifiability_report(J8, PARAM_NAMES + POSE_NAMES + LASER_POSE_NAMES[:p2 - 2])

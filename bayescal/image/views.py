@@ -15,7 +15,7 @@ import numpy as np
 
 from .._validation import as_pixels, as_points
 
-__all__ = ["BoardView", "board_points", "board_shape"]
+__all__ = ["BoardView", "board_points", "board_shape", "as_views"]
 
 
 def board_shape(board):
@@ -130,3 +130,23 @@ class BoardView:
         cov = None if self.covariance is None else self.covariance[idx]
         return BoardView(self.pixels[idx], self.points[idx], cov,
                          name=self.name if name is None else name, image_size=self.image_size)
+
+
+def as_views(views):
+    """A non-empty list of :class:`BoardView` from one view or a sequence of them.
+
+    Raises
+    ------
+    TypeError
+        Anything else, naming what was given.
+    """
+    given = type(views).__name__
+    if isinstance(views, BoardView):
+        return [views]
+    try:
+        views = list(views)
+    except TypeError:
+        views = []
+    if not views or not all(isinstance(v, BoardView) for v in views):
+        raise TypeError(f"views must be a non-empty sequence of BoardView, got {given}")
+    return views

@@ -22,7 +22,7 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from ..image.views import BoardView
+from ..image.views import BoardView, as_views
 from .tables import PIXEL_COV_COLUMNS, read_table
 
 __all__ = ["load_views", "write_views", "BOARD_COLUMNS"]
@@ -138,9 +138,7 @@ def write_views(path, views):
     pathlib.Path
     """
     path = pathlib.Path(os.fspath(path))
-    views = list(views)
-    if not views or not all(isinstance(v, BoardView) for v in views):
-        raise TypeError("views must be a non-empty sequence of BoardView")
+    views = as_views(views)
     index = np.concatenate([np.full(v.n_corners, k) for k, v in enumerate(views)])
     pixels = np.concatenate([v.pixels for v in views])
     points = np.concatenate([v.points for v in views])

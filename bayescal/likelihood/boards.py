@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..image.views import BoardView
+from ..image.views import as_views
 from ..sensor.board import project_board
 
 __all__ = ["BoardLikelihood", "NOISE_MODELS"]
@@ -65,9 +65,7 @@ class BoardLikelihood:
     """
 
     def __init__(self, views, *, degree=2):
-        views = list(views)
-        if not views or not all(isinstance(v, BoardView) for v in views):
-            raise TypeError("views must be a non-empty sequence of BoardView")
+        views = as_views(views)
         self.views = views
         self.names = [v.name for v in views]
         self.K = len(views)

@@ -40,6 +40,7 @@ from ..sensor.parameters import (
     PARAM_NAMES,
     SensorParams,
     camera_moments,
+    camera_whitener,
     from_identifiable,
     identifiable_jacobian,
     to_identifiable,
@@ -250,7 +251,7 @@ class Prior:
         if camera is not None:
             mean, cov = camera_moments(camera)
             self.camera = (mean, cov)
-            self._cam_white = np.linalg.inv(np.linalg.cholesky(cov))    # r = W (x - m)
+            self._cam_white = camera_whitener(cov)    # r = W (x - m)
             self._cam_norm = -0.5 * (np.linalg.slogdet(cov)[1] + 5 * np.log(2 * np.pi))
             dists.update(_camera_marginals(mean, cov, dists["phi"]))
         self.dists = dists

@@ -29,12 +29,12 @@ import numpy as np
 
 from .._validation import resolve_rng
 from ..fit.camera import (
-    _check_views,
     _noise_values,
     _schur,
     calibrate_camera,
     camera_normal_equations,
 )
+from ..image.views import as_views
 from ..likelihood.boards import NOISE_MODELS, BoardLikelihood
 from ..results.camera import CameraResult
 from ..sensor.board import CAMERA_NAMES
@@ -186,7 +186,7 @@ def sample_camera_posterior(views, rng=None, *, noise="view-systematic", lsq=Non
                       max_steps=max_steps, n_samples=n_samples, n_tune=n_tune,
                       on_unconverged=on_unconverged)
     rng = resolve_rng(rng)
-    views = _check_views(views)
+    views = as_views(views)
     cam, target, s0, cov0 = _start(views, noise, lsq, fit_options)
     ndim = len(s0)
     nw = default_walkers(ndim) if n_walkers is None else int(n_walkers)

@@ -28,6 +28,7 @@ __all__ = [
     "CAMERA_NAMES",
     "CAMERA_PARAM_NAMES",
     "camera_moments",
+    "camera_whitener",
     "SensorParams",
     "as_param_array",
     "to_identifiable",
@@ -269,3 +270,9 @@ def camera_moments(camera):
         raise ValueError(f"camera: expected xi >= 0 and gamma_u, gamma_v nonzero, got "
                          f"{dict(zip(CAMERA_NAMES, mean.tolist(), strict=True))}")
     return mean, cov
+
+
+def camera_whitener(cov):
+    """``W`` with ``W cov W^T = I`` (the inverse of the lower Cholesky factor): the rows
+    ``W (x - mean)`` of a camera prior, shape (5, 5)."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
