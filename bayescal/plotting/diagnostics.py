@@ -74,7 +74,14 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
     -------
     matplotlib.figure.Figure
     """
-    import corner
+    import warnings
+
+    with warnings.catch_warnings():
+        # corner imports ArviZ when it is installed, and ArviZ prints a notice of its
+        # coming refactor on the first import of each day: not the user's business
+        warnings.filterwarnings("ignore", message=r"\s*ArviZ is undergoing",
+                                category=FutureWarning)
+        import corner
 
     names, x, truths = _corner_data(posterior, identifiable, truth, laser_truth)
     idx = list(range(len(names)))
