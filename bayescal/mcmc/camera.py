@@ -90,7 +90,10 @@ class CameraTarget:
         s2, t2 = self._noise(s)
         poses = self.poses_map + np.einsum("kij,wj->wki", self.response, k - self.k_map)
         with np.errstate(all="ignore"):
-            lm, _ = self.lik.pose_laplace(k, poses, s2, t2, n_steps=self.n_steps)
+            if self.n_steps == 1:                   # the same value, without the pose update
+                lm = self.lik.log_marginal(k, poses, s2, t2)
+            else:
+                lm, _ = self.lik.pose_laplace(k, poses, s2, t2, n_steps=self.n_steps)
         lp = lm.sum(axis=-1)
         if NOISE_MODELS[self.model][1]:
             lp = lp + s[:, -1]                      # flat in tau: Jacobian of log tau

@@ -22,7 +22,7 @@ from .camera import project_theta
 from .parameters import CAMERA_NAMES
 
 __all__ = ["CAMERA_NAMES", "POSE6_NAMES", "rotation_from_vector", "vector_from_rotation",
-           "project_board"]
+           "project_board", "project_board_local", "log_det_left_jacobian"]
 
 #: a view's pose: rotation vector (rad) then translation (mm), board frame -> frame C
 POSE6_NAMES = ("w_x", "w_y", "w_z", "t_x", "t_y", "t_z")
@@ -60,11 +60,19 @@ def rotation_from_vector(w, *, jacobian=False):
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
     b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / np.where(small, 1.0, th2))
+    if not jacobian:
+        # I + a [w]_x + b [w]_x^2 = (1 - b th^2) I + a [w]_x + b w w^T, entry by entry
+        R = (b[..., None] * w)[..., :, None] * w[..., None, :]
+        i = np.arange(3)
+        R[..., i, i] += (1.0 - b * th2)[..., None]
+        aw = a[..., None] * w
+        for (r, c), j in (((2, 1), 0), ((0, 2), 1), ((1, 0), 2)):
+            R[..., r, c] += aw[..., j]
+            R[..., c, r] -= aw[..., j]
+        return R
     K = _skew(w)
     eye = np.eye(3)
     R = eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
-    if not jacobian:
-        return R
     dR = np.empty(R.shape + (3,))
     th2s = np.where(small, 1.0, th2)[..., None, None]
     for i in range(3):
@@ -147,3 +155,95 @@ def project_board(intrinsics, pose, points, *, jacobian=False):
     dPdw = np.moveaxis(dRp.reshape(sh + (3, 3, dRp.shape[-1])), -1, -3)
     d_pose = np.concatenate([dP @ dPdw, dP], axis=-1)
     return uv, valid, dth[..., :5], d_pose
+
+
+def log_det_left_jacobian(w):
+    """``log det J_l(w)`` of SO(3): ``log(2 (1 - cos |w|) / |w|^2)``.
+
+    ``J_l(w)`` maps a change of the rotation vector to the left perturbation it causes,
+    ``R(w + dw) = exp([J_l(w) dw]_x) R(w)`` (to first order), so a pose Hessian in the
+    left-perturbation coordinates of :func:`project_board_local` is ``J_l^-T H_w J_l^-1``
+    in ``w``: ``log det H_w = log det H_local + 2 log det J_l(w)``.
+
+    Parameters
+    ----------
+    w : array_like, shape (..., 3)
+        Rotation vectors, rad.
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    th2 = np.sum(np.asarray(w, float) ** 2, axis=-1)
+    small = th2 < 1e-8
+    th2s = np.where(small, 1.0, th2)
+    # 2 (1 - cos th) / th^2 = (sin(th/2) / (th/2))^2; series 1 - th^2/12 near 0
+    half = np.sqrt(th2s) / 2.0
+    return np.where(small, -th2 / 12.0, 2.0 * np.log(np.abs(np.sin(half)) / half))
+
+
+def local_rows(intrinsics, pose, points):
+    """Local-coordinate derivatives and pixels of board points, component-major (internal).
+
+    Returns
+    -------
+    ndarray, shape (..., 7, 2, M)
+        ``[..., :6, :, m]`` is ``d(u, v) / d(d, t)`` of point ``m``
+        (:func:`project_board_local`), ``[..., 6, :, m]`` its pixel ``(u, v)``; NaN outside
+        eq. (1)'s domain. Each ``(..., M)`` block is contiguous.
+    """
+    k = np.asarray(intrinsics, dtype=float)
+    pose = np.asarray(pose, dtype=float)
+    R = rotation_from_vector(pose[..., :3])
+    q = np.asarray(points, dtype=float) @ np.swapaxes(R, -1, -2)       # R p: (..., M, 3)
+    qx, qy, qz = q[..., 0], q[..., 1], q[..., 2]
+    x, y, z = (qx + pose[..., 3, None], qy + pose[..., 4, None], qz + pose[..., 5, None])
+    xi, gu, gv, u0, v0 = (k[..., i, None] for i in range(5))
+    r = np.sqrt(x * x + y * y + z * z)
+    D = xi * r - z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Dinv = 1.0 / np.where(D > 0, D, np.nan)
+        c = xi / r
+    cx, cy, cz = c * x, c * y, c * z - 1.0
+    out = np.empty(x.shape[:-1] + (7, 2, x.shape[-1]))
+    # d(u, v)/dP = gamma D^-1 (e_x - m dD/dP), dD/dP = xi P / r - e_z; d/dd = (q x a)
+    for row, (f, m, g0) in enumerate(((gu * Dinv, x * Dinv, u0), (gv * Dinv, y * Dinv, v0))):
+        o = out[..., row, :]
+        sm = f * m
+        np.multiply(-sm, cx, out=o[..., 3, :])
+        np.multiply(-sm, cy, out=o[..., 4, :])
+        np.multiply(-sm, cz, out=o[..., 5, :])
+        o[..., 3 + row, :] += f
+        ax, ay, az = o[..., 3, :], o[..., 4, :], o[..., 5, :]
+        o[..., 0, :] = qy * az - qz * ay
+        o[..., 1, :] = qz * ax - qx * az
+        o[..., 2, :] = qx * ay - qy * ax
+        o[..., 6, :] = (gu if row == 0 else gv) * m + g0
+    return out
+
+
+def project_board_local(intrinsics, pose, points):
+    """Pixels of board points and their derivatives in a pose's local coordinates.
+
+    The derivative is taken with respect to a left perturbation of the rotation,
+    ``R -> exp([d]_x) R``, and the translation: ``dP/dd = -[R p]_x``, which needs no
+    derivative of Rodrigues' formula (cheaper than :func:`project_board`'s ``d_pose``, equal
+    to it times ``J_l(w)^-1``, :func:`log_det_left_jacobian`).
+
+    Parameters
+    ----------
+    intrinsics : array_like, shape (..., 5)
+    pose : array_like, shape (..., 6)
+        Rotation vector (rad) and translation (mm).
+    points : array_like, shape (..., M, 3)
+        Board-frame points, mm.
+
+    Returns
+    -------
+    uv : ndarray, shape (..., M, 2)
+        Pixels; NaN outside eq. (1)'s domain.
+    d_local : ndarray, shape (..., M, 2, 6)
+        ``d(u, v) / d(d, t)``.
+    """
+    out = np.moveaxis(local_rows(intrinsics, pose, points), -1, -3)     # (..., M, 7, 2)
+    return out[..., 6, :], np.swapaxes(out[..., :6, :], -1, -2)

@@ -45,3 +45,19 @@ def test_pose_laplace_matches_dense_gaussian_integral(rng):
                       + (n - 6) * np.log(2 * np.pi))
         assert abs(lm[j] - ref) < 1e-6
         assert np.max(np.abs(Jp[j].T @ W @ r[j])) < 1e-6          # a mode: zero gradient
+
+
+def test_log_marginal_is_pose_laplace_with_one_step(rng):
+    """The cheap path (local pose coordinates, SVD of the field basis) gives the same number
+    as one Gauss-Newton step of :meth:`pose_laplace`, over walkers, padded views and both
+    noise models (rounding only: 1e-8 on values ~100)."""
+    views, truth = bc.simulate_views(n_views=3, rng=rng)
+    views[2] = views[2].subset(np.arange(25))
+    lik = BoardLikelihood(views)
+    W = 4
+    k = truth["intrinsics"] + rng.normal(size=(W, 5)) * [0.002, 1, 1, 1, 1]
+    poses = truth["poses"] + rng.normal(size=(W, 3, 6)) * np.r_[[0.01] * 3, [1.0] * 3]
+    s2 = rng.uniform(0.02, 0.1, size=(W, 3))
+    for t2 in (np.zeros(W), rng.uniform(0.001, 0.01, size=W)):
+        ref, _ = lik.pose_laplace(k, poses, s2, t2, n_steps=1)
+        np.testing.assert_allclose(lik.log_marginal(k, poses, s2, t2), ref, rtol=0, atol=1e-8)

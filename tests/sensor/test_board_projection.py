@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from bayescal.image.views import board_points
-from bayescal.sensor.board import project_board, rotation_from_vector, vector_from_rotation
+from bayescal.sensor.board import (
+    log_det_left_jacobian,
+    project_board,
+    project_board_local,
+    rotation_from_vector,
+    vector_from_rotation,
+)
 
 K = np.array([1.134, 317.8, -318.0, 642.5, 522.9])
 
@@ -48,6 +54,39 @@ def test_project_board_jacobians_match_finite_differences(rng, numdiff):
         # central differences: truncation error ~ step^2 * third derivative, well below 1e-5
         np.testing.assert_allclose(dk.reshape(-1, 5), nk, rtol=1e-6, atol=1e-5)
         np.testing.assert_allclose(dp.reshape(-1, 6), npo, rtol=1e-6, atol=1e-4)
+
+
+def test_rotation_without_jacobian_is_the_jacobian_paths_rotation(rng):
+    """The entry-by-entry Rodrigues of the plain call equals the matrix form of the other."""
+    w = rng.normal(size=(4, 3)) * np.array([[0.0], [1e-9], [0.5], [3.0]])
+    np.testing.assert_allclose(rotation_from_vector(w), rotation_from_vector(w, jacobian=True)[0],
+                               atol=1e-15)
+
+
+def test_local_pose_derivative_is_the_rotation_vector_one_through_the_left_jacobian(rng, numdiff):
+    """``d_pose = d_local @ diag(J_l(w), I)``, and ``log det J_l`` against finite differences
+    of the left perturbation ``exp([d]_x) R(w) = R(w + dw)`` (central differences, error
+    ~ step^2)."""
+    p = board_points((8, 6), 42.0)
+    for w_scale in (1e-9, 0.3, 2.5):
+        pose = _pose(rng)
+        pose[:3] *= w_scale / np.linalg.norm(pose[:3])
+        uv, _, _, dp = project_board(K, pose, p, jacobian=True)
+        uv_l, dl = project_board_local(K, pose, p)
+        np.testing.assert_allclose(uv_l, uv, atol=1e-10)
+        w = pose[:3]
+
+        def local_of(x, w=w):
+            """The left perturbation d with exp([d]_x) R(w) = R(x)."""
+            return vector_from_rotation(rotation_from_vector(x) @ rotation_from_vector(w).T)
+
+        Jl = numdiff(lambda x: np.array([local_of(v) for v in np.atleast_2d(x)]).reshape(
+            np.shape(x)), w, 1e-6)
+        T = np.eye(6)
+        T[:3, :3] = Jl
+        np.testing.assert_allclose((dl @ T).reshape(-1, 6), dp.reshape(-1, 6), rtol=1e-6,
+                                   atol=1e-5)
+        assert log_det_left_jacobian(w) == pytest.approx(np.linalg.slogdet(Jl)[1], abs=1e-8)
 
 
 def test_project_board_broadcasts_over_walkers_and_views(rng):
