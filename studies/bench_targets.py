@@ -11,6 +11,12 @@ Each row is a same-run ratio checked against its target and marked PASS or FAIL:
   plan (N = 300, 3 % plan, a tilted and offset sensor) over the aligned model on the same
   pixels, both per 1000 honest ESS, target <= 5x, on two plans (the tilt and offset of
   the misaligned rows, and (1, 0.5) deg, (3, -2) mm on another room);
+* **camera posterior** (``--only targets_camera``): ``bc.sample_camera_posterior`` on 10
+  simulated views (``bc.simulate_views``, default settings) in CPU seconds per 1000 ESS
+  (the smallest over the sampled parameters, median over 3 sampler seeds), target <= 5 s;
+  its same-run baseline is ``bc.calibrate_camera`` on the same views. CPU time (this
+  process's), not wall time: the target is absolute and the machine shared; on an idle
+  machine the two agree (the median wall time is in the notes);
 * **N = 20 000** (``--large-n``): the wall time of the call <= 120 s and its peak
   resident memory <= 0.5 GiB, in a spawned child process.
 
@@ -31,13 +37,17 @@ import numpy as np
 
 import bayescal as bc
 
-__all__ = ["target_rows", "verdict"]
+__all__ = ["target_rows", "verdict", "camera_rows"]
 
 NAME = "speed target"
 #: the plan rows' benchmark name (a separate --only run must not replace the others)
 PLAN_NAME = "speed target, plan"
 #: targets: posterior per 1000 ESS over the least squares; misaligned over aligned plan
 LSQ_TARGET, PLAN_TARGET = 15.0, 5.0
+#: the camera rows' benchmark name and target (CPU seconds per 1000 ESS, 10 views)
+CAMERA_NAME, CAMERA_TARGET = "speed target, camera", 5.0
+#: the camera rows' views: simulate_views keywords
+CAMERA_VIEWS = dict(n_views=10, rng=0)
 #: the N = 20 000 call: wall time (s) and peak resident memory (GiB)
 LARGE_N_SECONDS, LARGE_N_GIB = 120.0, 0.5
 
@@ -139,6 +149,44 @@ def plan_rows(seeds):
                   base / cand, f"cost {cost:.1f}x the aligned plan posterior (target <= "
                   f"{PLAN_TARGET:g}x): **{verdict(cost, PLAN_TARGET)}**; " + _facts(fm))]
     return rows
+
+
+def _camera_posterior(views, seed):
+    """One ``bc.sample_camera_posterior`` call: CPU and wall seconds per 1000 ESS, facts."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        c0, t0 = time.process_time(), time.perf_counter()
+        post = bc.sample_camera_posterior(views, rng=seed)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+    d = post.diagnostics
+    ess = float(np.min(d.ess))
+    return 1000.0 * cpu / ess, 1000.0 * wall / ess, (wall, post.converged, ess,
+                                                    float(np.max(d.tau)), d.n_steps)
+
+
+def camera_rows(seeds):
+    """The camera posterior per 1000 ESS (CPU) against its least squares, same views."""
+    views, _ = bc.simulate_views(**CAMERA_VIEWS)
+    lsq, cpu, wall, facts = [], [], [], []
+    for seed in seeds:                            # alternate: a load change hits both
+        for _ in range(5):
+            c0 = time.process_time()
+            bc.calibrate_camera(views)
+            lsq.append(time.process_time() - c0)
+        c, w, f = _camera_posterior(views, seed)
+        cpu.append(c)
+        wall.append(w)
+        facts.append(f)
+    base, cand = statistics.median(lsq), statistics.median(cpu)
+    label = f"{CAMERA_VIEWS['n_views']} simulated views (simulate_views, 8x6 board)"
+    return [(CAMERA_NAME, f"least squares, {label} (calibrate_camera)", base, 1.0,
+             f"baseline; CPU s, median of 5 calls per seed over {len(seeds)} seeds"),
+            (CAMERA_NAME, "camera posterior per 1000 ESS (CPU s), same views", cand,
+             base / cand,
+             f"{cand:.2f} s CPU per 1000 ESS, max over seeds {max(cpu):.2f} s (target <= "
+             f"{CAMERA_TARGET:g} s): **{verdict(cand, CAMERA_TARGET)}**; {cand / base:.1f}x "
+             f"the least squares; wall per 1000 ESS median {statistics.median(wall):.2f} s "
+             f"(shared machine); " + _facts(facts))]
 
 
 def large_n_check(wall_s, peak_gib):

@@ -15,6 +15,7 @@ Usage::
     python studies/benchmark.py --only project_triangulate --out /tmp/perf.md
     python studies/benchmark.py --only sampler --large-n 20000   # sampler rows only
     python studies/benchmark.py --only targets       # the speed targets, PASS/FAIL
+    python studies/benchmark.py --only targets_camera   # the camera posterior's target
 
 An ``--only`` run keeps the other benchmarks' rows of the existing output file
 (and says from which run they come). The sampler rows live in
@@ -341,6 +342,15 @@ def bench_targets_plan(timer):
     from bench_targets import plan_rows
 
     return [Row(*r) for r in plan_rows((0,) if timer.repeats < 7 else (0, 1, 2))]
+
+
+@benchmark("targets_camera")
+def bench_targets_camera(timer):
+    """The camera posterior on 10 simulated views at most 5 s (CPU) per 1000 ESS, beside
+    the least squares of the same views, PASS or FAIL (three sampler seeds)."""
+    from bench_targets import camera_rows
+
+    return [Row(*r) for r in camera_rows((0,) if timer.repeats < 7 else (0, 1, 2))]
 
 
 #: N of the one large-N sampler row (set by --large-n; 0 = skipped)
