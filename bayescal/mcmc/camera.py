@@ -168,8 +168,8 @@ def _imh_check(target, imh, rng, n):
     logw = lp - imh.log_q(x)
     logw = np.where(np.isfinite(logw), logw, -np.inf)
     with np.errstate(invalid="ignore", over="ignore"):
-        acc = float(np.mean(np.minimum(1.0, np.exp(logw[1::2] - logw[::2]))))
-    return x, lp, np.nan_to_num(acc)
+        ratio = np.nan_to_num(np.exp(logw[1::2] - logw[::2]), nan=0.0)   # both outside: 0
+    return x, lp, float(np.mean(np.minimum(1.0, ratio)))
 
 
 def _proposal(target, s0, cov0, rng, n_walkers, n_tune):
