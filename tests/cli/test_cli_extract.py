@@ -67,15 +67,23 @@ def test_bad_input_exit_2_nothing_written(images, args, match):
     assert not (root / "bad_out").exists()
 
 
-def test_simulate_images_then_extract(tmp_path):
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    """`simulate --images` then `extract` with its laser-off image, once for the module."""
+    root = tmp_path_factory.mktemp("sim_extract")
     r = run("simulate", "--images", "--range-mm", 2500, "--n-points", 60, "--seed", 3,
-            "--out", "sim", cwd=tmp_path)
+            "--out", "sim", cwd=root)
     assert r.returncode == 0, r.stderr
+    r = run("extract", "sim/image.png", "--background", "sim/image_off.png", "--out", "ex",
+            cwd=root)
+    assert r.returncode == 0, r.stderr
+    return root
+
+
+def test_simulate_images_then_extract(simulated):
+    tmp_path = simulated
     img = iio.imread(tmp_path / "sim" / "image.png")
     assert img.dtype == np.uint16 and img.shape == (600, 800)
-    r = run("extract", "sim/image.png", "--background", "sim/image_off.png", "--out", "ex",
-            cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
     ring = np.loadtxt(tmp_path / "sim" / "ring.csv", delimiter=",", skiprows=3)
     got = _laser(tmp_path / "ex" / "laser.csv")
     good = got[got[:, 6] == 0, :2]
@@ -121,15 +129,10 @@ def test_calibrate_reads_pixel_covariances(images):
     assert not (root / "cal3").exists()
 
 
-def test_calibrate_on_walls_with_pixel_covariances(tmp_path):
-    """extract's laser.csv (cov_uu, cov_uv, cov_vv) with --walls: least squares, an inferred
-    scale on the covariances and the posterior all take them."""
-    r = run("simulate", "--images", "--range-mm", 2500, "--n-points", 60, "--seed", 3,
-            "--out", "sim", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    r = run("extract", "sim/image.png", "--background", "sim/image_off.png", "--out", "ex",
-            cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
+def test_calibrate_on_walls_with_pixel_covariances(simulated):
+    """extract's laser.csv (cov_uu, cov_uv, cov_vv) with --walls: the least squares, with the
+    noise given and with a scale on the covariances inferred, takes them."""
+    tmp_path = simulated
     r = run("calibrate", "ex/laser.csv", "--walls", "sim/walls.csv", "--out", "cal",
             "--no-progress", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -146,6 +149,13 @@ def test_calibrate_on_walls_with_pixel_covariances(tmp_path):
     # the scale on the extractor's covariances, inferred: of order one (they are honest)
     scale = bc.load_result(tmp_path / "cal2" / "result.json").sigma_px_estimated
     assert 0.4 < scale < 2.5, scale
+
+
+@pytest.mark.slow
+def test_posterior_on_walls_with_pixel_covariances(simulated):
+    """The posterior takes extract's covariances from the shell too (the library's sampler
+    is tested with them in tests/mcmc/test_pixel_cov_posterior.py, in the default run)."""
+    tmp_path = simulated
     r = run("calibrate", "ex/laser.csv", "--walls", "sim/walls.csv", "--method", "bayes",
             "--max-steps", 200, "--allow-unconverged", "--out", "post", "--no-progress",
             cwd=tmp_path)
