@@ -17,7 +17,7 @@ from scipy.ndimage import median_filter
 
 from .doubt import blob_mask, check_ring, dark_core, mirror_disc
 from .noise import noise_model
-from .peak import fit_peaks
+from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
 from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
 
@@ -288,8 +288,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     """Sub-pixel points on the path, their covariances and flags."""
     n = len(pol.phi)
     i = np.arange(n)
-    offs = np.arange(-2, 3)
-    base = pol.base[i[:, None], k[:, None] + offs[None]]
+    base = flank_baseline(pol.values, k)
     r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
                                                          pol.radii[k], base, sub=pol.sub)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
