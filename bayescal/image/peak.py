@@ -22,17 +22,17 @@ def bilinear(img, u, v):
     return vals, idx, wts
 
 
-def flank_baseline(values, k, *, inner=3, outer=9, q=25.0):
+def flank_baseline(values, k, *, inner=3, outer=9, q=5.0):
     """A straight baseline under the 5 samples around each profile's peak, through the low
     quartiles of its two flanks.
 
     A running median over the profile (the ridge search's high-pass) is lifted wherever a
     second ridge shares its window, as a ghost of the ring 6-8 px away does: the lift is
-    uneven across the peak and tilts it away from the ghost by up to 0.27 px. Here each
-    flank (``inner`` to ``outer`` px from the peak) gives one level, its ``q`` percentile,
-    so a ridge that covers less than ``q`` % of a flank does not lift it; a constant
-    error of the level (its noise, a wall's slope) moves no peak, and the straight line
-    follows a slope of the background.
+    uneven across the peak and tilts it by up to 0.27 px. Here each flank (``inner`` to
+    ``outer`` px from the peak) gives one level, a low percentile ``q`` of it (near its
+    least sample), which a ridge covering part of the flank does not lift; what the two
+    levels share (their noise's low bias, a wall's level) moves no peak, and on a straight
+    slope of the background both sit at their flank's low end, so the line has its slope.
 
     Parameters
     ----------
