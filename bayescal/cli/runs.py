@@ -202,6 +202,7 @@ def _bayes(job):
         kw["outliers"] = False
     if uses_pixel_cov(job.method, data, job.plan):
         kw["pixel_cov"] = data.pixel_cov
+    kw |= _offset(data)
     if job.camera is not None:
         kw["camera"] = job.camera
     if job.plan is None:
@@ -230,6 +231,13 @@ def _bayes(job):
                   "(--max-steps) or pass --allow-unconverged")
 
 
+def _offset(data):
+    """``{"offset_sd": sd}`` when the data file has ``# offset_sd: SD`` (the extractor's
+    translation of the whole ring, px), else ``{}``."""
+    sd = 0.0 if data is None else data.pixel_table.meta.get(OFFSET_SD_KEY, 0.0)
+    return {"offset_sd": sd} if sd > 0 else {}
+
+
 def _least_squares(job):
     """The sequential or simultaneous result of ``job`` (may raise ConvergenceError)."""
     import bayescal as bc
@@ -246,9 +254,7 @@ def _least_squares(job):
         return bc.calibrate_sequential(job.calib, model=job.model, **kw)
     if uses_pixel_cov(job.method, job.data, job.plan):
         kw["pixel_cov"] = job.data.pixel_cov
-    offset = 0.0 if job.data is None else job.data.pixel_table.meta.get(OFFSET_SD_KEY, 0.0)
-    if offset > 0:                      # the extractor's translation of the whole ring
-        kw["offset_sd"] = offset
+    kw |= _offset(job.data)
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers,
