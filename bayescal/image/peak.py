@@ -23,8 +23,8 @@ def bilinear(img, u, v):
 
 
 def flank_baseline(values, k, *, inner=3, outer=9, q=5.0):
-    """A straight baseline under the 5 samples around each profile's peak, through the low
-    quartiles of its two flanks.
+    """A straight baseline under the 5 samples around each profile's peak, through a low
+    percentile of each of its two flanks.
 
     A running median over the profile (the ridge search's high-pass) is lifted wherever a
     second ridge shares its window, as a ghost of the ring 6-8 px away does: the lift is

@@ -47,6 +47,7 @@ def offset_sd_line(sd):
     """The comment line (without its ``#``) that carries ``sd`` px."""
     return f"{OFFSET_SD_KEY}: {float(sd):.6g}"
 
+
 #: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
 #: far below any approximate point's error; smaller values are numerical accidents
 MIN_SD = 1e-9
