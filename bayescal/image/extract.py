@@ -304,13 +304,13 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
             flank=False):
-    """Sub-pixel points on the path, their covariances and flags; ``flank``: the peak's
-    baseline from its flanks (on a laser-off difference, whose background is flat) instead
-    of the running median (which follows the wall texture of a single image)."""
+    """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
+    the peak's baseline from its flanks (on a laser-off difference, whose background is
+    flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
     offs = np.arange(-2, 3)
-    base = flank_baseline(pol.values, k) if flank else \
+    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
         pol.base[i[:, None], k[:, None] + offs[None]]
     r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
                                                          pol.radii[k], base, sub=pol.sub)

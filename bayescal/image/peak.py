@@ -22,17 +22,18 @@ def bilinear(img, u, v):
     return vals, idx, wts
 
 
-def flank_baseline(values, k, *, inner=3, outer=9, q=5.0):
-    """A straight baseline under the 5 samples around each profile's peak, through a low
-    percentile of each of its two flanks.
+def flank_baseline(values, k, level, *, inner=3, outer=9, q=5.0):
+    """A straight baseline under the 5 samples around each profile's peak: ``level`` at the
+    peak, and the slope of the line through a low percentile of each of its two flanks.
 
     A running median over the profile (the ridge search's high-pass) is lifted wherever a
     second ridge shares its window, as a ghost of the ring 6-8 px away does: the lift is
-    uneven across the peak and tilts it by up to 0.27 px. Here each flank (``inner`` to
-    ``outer`` px from the peak) gives one level, a low percentile ``q`` of it (near its
-    least sample), which a ridge covering part of the flank does not lift; what the two
-    levels share (their noise's low bias, a wall's level) moves no peak, and on a straight
-    slope of the background both sit at their flank's low end, so the line has its slope.
+    uneven across the peak, a tilt that moves it by up to 0.27 px. Each flank (``inner``
+    to ``outer`` px from the peak) gives one level, its ``q`` percentile (near its least
+    sample), which a ridge covering part of the flank does not lift; on a straight slope of
+    the background both sit at their flank's low end, so their line has its slope. Only the
+    slope is taken: their shared low bias would spoil the fit's misfit, which scales the
+    variances; the level at the peak (the running median's) moves no peak.
 
     Parameters
     ----------
@@ -40,6 +41,8 @@ def flank_baseline(values, k, *, inner=3, outer=9, q=5.0):
         Profiles on a 1-px radial grid.
     k : ndarray of int, shape (n,)
         Index of each profile's peak sample.
+    level : ndarray, shape (n,)
+        The baseline at the peak sample.
 
     Returns
     -------
@@ -51,8 +54,7 @@ def flank_baseline(values, k, *, inner=3, outer=9, q=5.0):
     side = np.arange(inner, outer + 1)[None]
     lo = np.percentile(values[i, np.clip(k[:, None] - side, 0, K - 1)], q, axis=1)
     hi = np.percentile(values[i, np.clip(k[:, None] + side, 0, K - 1)], q, axis=1)
-    mid = 0.5 * (inner + outer)
-    return lo[:, None] + (hi - lo)[:, None] * (_OFFS[None] + mid) / (2 * mid)
+    return np.asarray(level, float)[:, None] + ((hi - lo) / (inner + outer))[:, None] * _OFFS[None]
 
 
 def _pixel_variance(dmu_ds, idx, wts, var_img):
