@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
-from ..io.tables import image_size_line
+from ..io.tables import OFFSET_SD_KEY, image_size_line, offset_sd_line
 from ..sensor.pose import POSE_NAMES
 from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
@@ -147,13 +147,16 @@ def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_
     """Write extracted laser pixels as ``bayescal extract``'s CSV (u, v, cov_uu, cov_uv,
     cov_vv, snr, flagged); ``rows`` (bool or int index) writes a subset. ``image_size``
     ``(width, height)`` px is written first as ``# image_size: WxH``, which ``calibrate``
-    and ``reconstruct`` read."""
+    and ``reconstruct`` read; then ``# offset_sd: SD``, the sd of a translation shared by
+    every pixel (``lp.offset_sd``), which ``calibrate`` adds to u0 and v0."""
     from ..io.data import _write_csv
 
     k = slice(None) if rows is None else rows
     note = (f"bayescal extract {image_name}: u, v laser centre line (px); cov_*: "
             "covariance (px^2), small along the ring's normal, large along it; snr: peak over "
             "noise sd; flagged: 1 = likely distractor, left out by calibrate" + extra_note)
+    if getattr(lp, "offset_sd", 0.0) > 0:
+        note = f"{offset_sd_line(lp.offset_sd)}\n" + note
     if image_size is not None:
         note = f"{image_size_line(image_size)}\n" + note
     px, cov = lp.pixels[k], lp.covariance[k]
@@ -199,6 +202,7 @@ def _bayes(job):
         kw["outliers"] = False
     if uses_pixel_cov(job.method, data, job.plan):
         kw["pixel_cov"] = data.pixel_cov
+    kw |= _offset(data)
     if job.camera is not None:
         kw["camera"] = job.camera
     if job.plan is None:
@@ -227,6 +231,13 @@ def _bayes(job):
                   "(--max-steps) or pass --allow-unconverged")
 
 
+def _offset(data):
+    """``{"offset_sd": sd}`` when the data file has ``# offset_sd: SD`` (the extractor's
+    translation of the whole ring, px), else ``{}``."""
+    sd = 0.0 if data is None else data.pixel_table.meta.get(OFFSET_SD_KEY, 0.0)
+    return {"offset_sd": sd} if sd > 0 else {}
+
+
 def _least_squares(job):
     """The sequential or simultaneous result of ``job`` (may raise ConvergenceError)."""
     import bayescal as bc
@@ -243,6 +254,7 @@ def _least_squares(job):
         return bc.calibrate_sequential(job.calib, model=job.model, **kw)
     if uses_pixel_cov(job.method, job.data, job.plan):
         kw["pixel_cov"] = job.data.pixel_cov
+    kw |= _offset(job.data)
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers,

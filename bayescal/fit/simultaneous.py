@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import check_positive
 from ..checks.fit import NoiseCollapseError, check_noise_levels, flag_untrusted, worst_rows
 from ..checks.inputs import check_calibration_input
 from ..likelihood.misaligned import MisalignedLikelihood
@@ -76,7 +77,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
                            outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
-                           pixel_cov=None, model="aligned", camera=None):
+                           pixel_cov=None, model="aligned", camera=None, offset_sd=0.0):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
 
     Parameters
@@ -103,6 +104,12 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         scale; with approximate points it is refused (on an extractor's covariances,
         whose along-ring sd is overstated on purpose, one scale cannot fit both
         directions: ``docs/images.md``). Needs ``estimate_points=True``.
+    offset_sd : float, optional
+        Standard deviation (px, each axis) of an error shared by every pixel, a translation
+        of them all (``bc.extract_laser(...).offset_sd``). A common translation is exactly
+        a shift of ``(u0, v0)``, so the fit is unchanged and ``offset_sd**2`` is added to
+        the variances of u0 and v0 (a nuisance translation with a Gaussian prior,
+        marginalised).
     prior : dict, optional
         ``{name: scipy.stats frozen distribution}`` for any of the eight
         parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
@@ -170,6 +177,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     True
     """
     model = check_model(model)
+    offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
     prior = as_prior(prior, camera)
     if model == "misaligned" and not estimate_points:
         raise NotImplementedError("model='misaligned' needs the points estimated "
@@ -184,11 +192,11 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         if sigma_scene is not _REQUIRED or not estimate_points:
             raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
                             "(the plan carries its own sds); leave them out")
-        return calibrate_plan(pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
-                              absolute_sigma=absolute_sigma, max_iter=max_iter,
-                              raise_on_failure=raise_on_failure, outliers=outliers,
-                              outlier_scale=outlier_scale, outlier_prior=outlier_prior,
-                              pixel_cov=pixel_cov, model=model)
+        return _with_offset(calibrate_plan(
+            pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
+            absolute_sigma=absolute_sigma, max_iter=max_iter, raise_on_failure=raise_on_failure,
+            outliers=outliers, outlier_scale=outlier_scale, outlier_prior=outlier_prior,
+            pixel_cov=pixel_cov, model=model), offset_sd)
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")
@@ -208,7 +216,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                                           for n in POSE_NAMES]])
     q0 = lik.initial_q(theta0)
     if not estimate_points:
-        return calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure)
+        return _with_offset(calibrate_fixed_points(lik, prior, init, absolute_sigma,
+                                                   raise_on_failure), offset_sd)
 
     result, problem = _checked(lik, prior, _fit_map(lik, prior, theta0, q0, max_iter),
                                absolute_sigma)
@@ -224,6 +233,19 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     if problem is not None and raise_on_failure:
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
+    return _with_offset(result, offset_sd)
+
+
+def _with_offset(result, offset_sd):
+    """``result`` with ``offset_sd**2`` (px^2) added to the variances of u0 and v0: a
+    translation shared by every pixel is a shift of the principal point, the rest of the fit
+    unchanged (``extras["offset_sd"]`` records it)."""
+    result.extras["offset_sd"] = offset_sd
+    if offset_sd > 0:
+        iu = IDENTIFIABLE_NAMES.index("u0")
+        result.covariance_identifiable[iu:iu + 2, iu:iu + 2] += offset_sd ** 2 * np.eye(2)
+        ip = PARAM_NAMES.index("u0")
+        result._covariance[ip:ip + 2, ip:ip + 2] += offset_sd ** 2 * np.eye(2)
     return result
 
 

@@ -10,18 +10,24 @@ accuracy are in ``docs/images.md``.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import median_filter
 
+from .._validation import check_positive
 from .doubt import blob_mask, check_ring, dark_core, mirror_disc
 from .noise import noise_model
-from .peak import fit_peaks
+from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
 from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
 
-__all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES"]
+__all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
+
+#: sd (px, per axis) of a displacement of the ring as a whole that the per-point covariances
+#: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
+#: measured 0.01-0.04 px per image on two renderers (docs/images.md)
+OFFSET_SD = 0.02
 
 @dataclass(frozen=True)
 class LaserPixels:
@@ -40,6 +46,12 @@ class LaserPixels:
         Points that fail the ring-consistency or SNR gates (likely distractors).
     center : ndarray, shape (2,)
         Centre of the radial profiles, px.
+    offset_sd : float
+        Standard deviation (px, each axis) of an error shared by every point: a
+        translation of the ring as a whole, beyond the per-point covariances. A common
+        translation of the pixels is a shift of ``(u0, v0)``: pass it to the calibration
+        (``calibrate_simultaneous(..., offset_sd=lp.offset_sd)``), which adds its variance
+        to theirs.
     """
 
     pixels: np.ndarray
@@ -47,6 +59,7 @@ class LaserPixels:
     snr: np.ndarray
     flagged: np.ndarray
     center: np.ndarray
+    offset_sd: float = 0.0
 
     def __len__(self):
         return len(self.pixels)
@@ -172,7 +185,7 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
 
 def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=None,
                   min_snr=3.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
-                  highpass_px=15, check=True):
+                  highpass_px=15, check=True, offset_sd=OFFSET_SD):
     """Extract the laser centre line, one sub-pixel point per image azimuth.
 
     Radial profiles from a centre inside the ring are high-passed by subtracting their
@@ -215,6 +228,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     check : bool, optional
         Raise :class:`~bayescal.errors.ExtractionError` when the ring found is implausible
         (False returns it, flagged as it is).
+    offset_sd : float, optional
+        Standard deviation (px, each axis) of a translation of the whole ring, reported as
+        :attr:`LaserPixels.offset_sd` (default :data:`OFFSET_SD`, measured).
 
     Returns
     -------
@@ -235,6 +251,7 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     >>> lp.pixels.shape[1], lp.covariance.shape[1:]
     (2, (2, 2))
     """
+    offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
     sig, var_img, raw, sat = _signal(image, background, channel)
     if center is not None:
         c = np.asarray(center, dtype=float)
@@ -248,7 +265,8 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         sig, raw, sat, center, radius, n_azimuth=n_azimuth, highpass_px=highpass_px,
         runner_up=check)
     lp, _ = _points(sig, var_img, pol, k, on_blob, min_snr=min_snr, gate_px=gate_px,
-                    along_sd=along_sd, var_floor=var_floor)
+                    along_sd=along_sd, var_floor=var_floor, flank=background is not None)
+    lp = replace(lp, offset_sd=offset_sd)
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (pol.center, np.nan, None)
@@ -284,12 +302,16 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     return pol, k, on_blob, closure, gains, mirror
 
 
-def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor):
-    """Sub-pixel points on the path, their covariances and flags."""
+def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
+            flank=False):
+    """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
+    the peak's baseline from its flanks (on a laser-off difference, whose background is
+    flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
     offs = np.arange(-2, 3)
-    base = pol.base[i[:, None], k[:, None] + offs[None]]
+    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
+        pol.base[i[:, None], k[:, None] + offs[None]]
     r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
                                                          pol.radii[k], base, sub=pol.sub)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bilinear", "fit_peaks"]
+__all__ = ["bilinear", "fit_peaks", "flank_baseline"]
 
 _OFFS = np.arange(-2, 3)
 
@@ -20,6 +20,41 @@ def bilinear(img, u, v):
     wts = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=-1)
     vals = np.sum(img[idx[..., 0], idx[..., 1]] * wts, axis=-1)
     return vals, idx, wts
+
+
+def flank_baseline(values, k, level, *, inner=3, outer=9, q=5.0):
+    """A straight baseline under the 5 samples around each profile's peak: ``level`` at the
+    peak, and the slope of the line through a low percentile of each of its two flanks.
+
+    A running median over the profile (the ridge search's high-pass) is lifted wherever a
+    second ridge shares its window, as a ghost of the ring 6-8 px away does: the lift is
+    uneven across the peak, a tilt that moves it by up to 0.27 px. Each flank (``inner``
+    to ``outer`` px from the peak) gives one level, its ``q`` percentile (near its least
+    sample), which a ridge covering part of the flank does not lift; on a straight slope of
+    the background both sit at their flank's low end, so their line has its slope. Only the
+    slope is taken: their shared low bias would spoil the fit's misfit, which scales the
+    variances; the level at the peak (the running median's) moves no peak.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n, K)
+        Profiles on a 1-px radial grid.
+    k : ndarray of int, shape (n,)
+        Index of each profile's peak sample.
+    level : ndarray, shape (n,)
+        The baseline at the peak sample.
+
+    Returns
+    -------
+    ndarray, shape (n, 5)
+        The baseline at the peak's samples ``k - 2 ... k + 2``.
+    """
+    n, K = values.shape
+    i = np.arange(n)[:, None]
+    side = np.arange(inner, outer + 1)[None]
+    lo = np.percentile(values[i, np.clip(k[:, None] - side, 0, K - 1)], q, axis=1)
+    hi = np.percentile(values[i, np.clip(k[:, None] + side, 0, K - 1)], q, axis=1)
+    return np.asarray(level, float)[:, None] + ((hi - lo) / (inner + outer))[:, None] * _OFFS[None]
 
 
 def _pixel_variance(dmu_ds, idx, wts, var_img):

@@ -22,7 +22,7 @@ from ..errors import InputError
 
 __all__ = ["Table", "read_table", "drop_flagged", "parse_image_size", "LASER_COLUMNS",
            "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY",
-           "image_size_line"]
+           "image_size_line", "OFFSET_SD_KEY", "offset_sd_line"]
 
 LASER_COLUMNS = ("u", "v", "x", "y", "z")
 SIGMA_COLUMNS = ("sigma_x", "sigma_y", "sigma_z")
@@ -31,11 +31,22 @@ PIXEL_COV_COLUMNS = ("cov_uu", "cov_uv", "cov_vv")
 #: the comment line that carries the image size: ``# image_size: 1280x1024`` (px)
 IMAGE_SIZE_KEY = "image_size"
 _META_RE = re.compile(r"^#\s*image_size\s*[:=]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
+#: the comment line that carries the sd of a translation shared by every pixel (px, each
+#: axis): ``# offset_sd: 0.02`` (``bayescal extract`` writes it; calibrate adds its variance
+#: to u0 and v0)
+OFFSET_SD_KEY = "offset_sd"
+_OFFSET_RE = re.compile(r"^#\s*offset_sd\s*[:=]\s*(\S+)\s*(px)?\s*$")
 
 
 def image_size_line(size):
     """The comment line (without its ``#``) that carries ``size = (width, height)`` px."""
     return f"{IMAGE_SIZE_KEY}: {int(size[0])}x{int(size[1])}"
+
+
+def offset_sd_line(sd):
+    """The comment line (without its ``#``) that carries ``sd`` px."""
+    return f"{OFFSET_SD_KEY}: {float(sd):.6g}"
+
 
 #: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
 #: far below any approximate point's error; smaller values are numerical accidents
@@ -124,12 +135,16 @@ def _parse_cell(text, *, where, sigma):
 
 
 def _meta(path, text):
-    """``# key: value`` lines before the header: the image size (``# image_size: WxH``)."""
+    """``# key: value`` lines before the header: the image size (``# image_size: WxH``) and
+    the shared translation's sd (``# offset_sd: SD``, px)."""
     meta = {}
     for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if s and not s.startswith("#"):
             break
+        off = _OFFSET_RE.match(s)
+        if off is not None:
+            meta[OFFSET_SD_KEY] = _offset_sd(path, lineno, off.group(1))
         m = _META_RE.match(s)
         if m is None:
             continue
@@ -139,6 +154,17 @@ def _meta(path, text):
                              "positive width and height in px", path=str(path), line=lineno)
         meta[IMAGE_SIZE_KEY] = (w, h)
     return meta
+
+
+def _offset_sd(path, lineno, text):
+    try:
+        sd = float(text)
+    except ValueError:
+        sd = float("nan")
+    if not (np.isfinite(sd) and sd >= 0):
+        raise InputError(f"{path}, line {lineno}: offset_sd {text!r}; expected a finite "
+                         "non-negative number of pixels", path=str(path), line=lineno)
+    return sd
 
 
 def _read_csv(path, required, optional):

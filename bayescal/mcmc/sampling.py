@@ -32,13 +32,13 @@ import warnings
 
 import numpy as np
 
-from .._validation import resolve_rng
+from .._validation import check_positive, resolve_rng
 from ..fit.simultaneous import check_model, point_likelihood
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
 from ..likelihood.priors import Prior, as_prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
-from ..sensor.parameters import from_identifiable
+from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, from_identifiable
 from ..stats.chains import integrated_time
 from .collapsed import (
     NoiseAtBoundWarning,
@@ -63,7 +63,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                      n_samples=2000, init=None, moves=None, progress=True,
                      on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
                      outliers=True, model="aligned", pixel_cov=None, camera=None,
-                     budget=BUDGET_FACTOR):
+                     budget=BUDGET_FACTOR, offset_sd=0.0):
     """Sample the posterior over the 8 sensor parameters and every laser point.
 
     Parameters
@@ -147,6 +147,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         posterior, or ``(mean, cov)``): the correlated normal prior of ``xi, gamma_u,
         gamma_v, u0, v0``, as in :func:`bayescal.calibrate_simultaneous`; the log
         prior of every sampled state carries it.
+    offset_sd : float, optional
+        Standard deviation (px, each axis) of a translation shared by every pixel
+        (``bc.extract_laser(...).offset_sd``): a shift of ``(u0, v0)``, marginalised by
+        adding independent draws of it to their samples (and its variance to the
+        Laplace covariances), as :func:`bayescal.calibrate_simultaneous` does.
 
     Returns
     -------
@@ -166,21 +171,22 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
+    offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
     prior = as_prior(prior, camera)
+    rng = resolve_rng(rng)
     if budget is not None and not (isinstance(budget, (int, float, np.number))
                                    and not isinstance(budget, bool) and budget >= 1):
         raise ValueError(f"budget must be None or a number >= 1 (times the projected "
                          f"steps), got {budget!r}")
     if isinstance(approx_points, FloorPlan):          # walls in place of points
         kw = {k: v for k, v in locals().items()
-              if k not in ("pixels", "approx_points", "camera", "budget")}
-        return sample_plan_posterior(pixels, approx_points, **kw)
+              if k not in ("pixels", "approx_points", "camera", "budget", "offset_sd")}
+        return _with_offset(sample_plan_posterior(pixels, approx_points, **kw), offset_sd, rng)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
                         "(needed with approximate points)")
     from ..fit.simultaneous import calibrate_simultaneous
 
-    rng = resolve_rng(rng)
     lik = point_likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
                            sigma_scene=sigma_scene, outliers=outliers, pixel_cov=pixel_cov)
     ndim = 7 + len(lik.extra_names)
@@ -201,6 +207,20 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
                        on_unconverged=on_unconverged, stacklevel=2)
+    return _with_offset(post, offset_sd, rng)
+
+
+def _with_offset(post, offset_sd, rng):
+    """``post`` with a translation shared by every pixel marginalised: independent draws of
+    it (sd ``offset_sd`` px) added to the u0 and v0 samples, its variance to the Laplace
+    covariances (a common pixel translation is a shift of the principal point)."""
+    if offset_sd > 0:
+        ip, iu = PARAM_NAMES.index("u0"), IDENTIFIABLE_NAMES.index("u0")
+        post.param_samples[:, ip:ip + 2] += rng.normal(0.0, offset_sd,
+                                                       (len(post.param_samples), 2))
+        post.laplace_cov8[ip:ip + 2, ip:ip + 2] += offset_sd ** 2 * np.eye(2)
+        post.laplace_cov7[iu:iu + 2, iu:iu + 2] += offset_sd ** 2 * np.eye(2)
+    post.offset_sd = offset_sd
     return post
 
 

@@ -63,8 +63,8 @@ def test_chain_least_squares(chain):
     """No hand editing: extract's laser.csv goes into calibrate (flagged rows left out, the
     image size read from it) and reconstruct; the calibration holds the true sensor."""
     root = chain
-    head = (root / "ex" / "laser.csv").read_text().splitlines()[0]
-    assert head == "# image_size: 800x600"
+    head = (root / "ex" / "laser.csv").read_text().splitlines()[:2]
+    assert head == ["# image_size: 800x600", f"# offset_sd: {bc.image.extract.OFFSET_SD:g}"]
     a = _numbers(root / "ex" / "laser.csv")
     flagged = a[:, 6] == 1
     assert set(np.unique(a[:, 6])) <= {0.0, 1.0}
@@ -80,6 +80,9 @@ def test_chain_least_squares(chain):
     assert "estimated pixel noise" not in r.stdout
     res = bc.load_result(root / "cal" / "result.json")
     assert len(res.points) == int((~flagged).sum())
+    # the ring's shared translation went into the variances of u0 and v0
+    assert res.extras["offset_sd"] == bc.image.extract.OFFSET_SD
+    assert np.all(np.sqrt(np.diag(res.covariance_identifiable))[3:5] >= res.extras["offset_sd"])
     # simulate --images renders the design sensor; 5 sd: a false failure ~1e-6 per parameter
     assert np.all(np.abs(_z(res, bc.SensorParams.paper())) < 5)
     info = json.loads((root / "cal" / "run.json").read_text())

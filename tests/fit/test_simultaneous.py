@@ -338,3 +338,25 @@ def test_bad_prior_and_init_raise(small):
         _fit(small, init=PAPER.as_dict())
     with pytest.raises(ValueError, match="estimate_points=False needs sigma_px and sigma_scene"):
         _fit(small, sigma_px=None, estimate_points=False)
+
+
+def test_offset_sd_adds_to_the_principal_point_only():
+    # a translation shared by every pixel is a shift of (u0, v0): the fit is unchanged and
+    # offset_sd**2 is added to their variances, nothing else (exact to rounding)
+    ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.02,
+                          approx_model="gaussian", rng=5)
+    a = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                  sigma_scene=ds.sigma_scene)
+    b = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                  sigma_scene=ds.sigma_scene, offset_sd=0.05)
+    np.testing.assert_array_equal(b.params.to_array(), a.params.to_array())
+    extra = np.zeros((7, 7))
+    extra[3, 3] = extra[4, 4] = 0.05 ** 2
+    np.testing.assert_allclose(b.covariance_identifiable - a.covariance_identifiable, extra,
+                               atol=1e-15)
+    assert b.extras["offset_sd"] == 0.05 and a.extras["offset_sd"] == 0.0
+    d8 = b.covariance() - a.covariance()
+    np.testing.assert_allclose(np.diag(d8), [0, 0, 0, 0, 0.05 ** 2, 0.05 ** 2, 0, 0], atol=1e-15)
+    with pytest.raises(ValueError, match="offset_sd"):
+        bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                  sigma_scene=ds.sigma_scene, offset_sd=-1.0)

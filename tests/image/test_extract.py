@@ -110,3 +110,37 @@ def test_bad_input(bad, match):
 def test_read_image_missing(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         bc.read_image(tmp_path / "nope.png")
+
+
+def test_flank_baseline_ignores_a_ghost_and_follows_a_slope():
+    # a ring peak at radius index 40 and a ghost half as bright 7 px inside it, on a flat
+    # background (a laser-off difference): the running median (15 px) under the peak is
+    # lifted by the ghost on one side, a tilt that moves the peak; the slope through the
+    # flanks' low percentiles is not. On a ramp (0.5 grey levels per px) without a ghost
+    # it is the ramp's.
+    from scipy.ndimage import median_filter
+
+    from bayescal.image.peak import flank_baseline
+
+    x = np.arange(80.0)
+    peak = 100 * np.exp(-0.5 * (x - 40) ** 2)
+    ghost = peak + 50 * np.exp(-0.5 * (x - 33) ** 2)
+    k = np.array([40])
+    base = flank_baseline(ghost[None], k, [0.0])[0]
+    assert np.ptp(base) < 1.0 and np.all(np.abs(base) < 1.0)   # 50 grey levels of ghost
+    med = median_filter(ghost, size=15, mode="nearest")[38:43]
+    assert med[0] - med[-1] > 5.0          # what the flanks replace: a tilt of > 5 grey levels
+    ramp = 10.0 + 0.5 * x + peak
+    # (exact but for the peak's own tail, 1.1 grey levels at 3 px, on the lower flank's end)
+    base = flank_baseline(ramp[None], k, [30.0])[0]
+    np.testing.assert_allclose(np.diff(base), 0.5, atol=0.05)
+    assert base[2] == 30.0                  # the level at the peak is the one given
+
+
+def test_offset_sd_is_reported_and_checked():
+    img, truth = render(2500, 3, with_background=True)
+    lp = bc.extract_laser(img, background=truth.background)
+    assert lp.offset_sd == bc.image.extract.OFFSET_SD > 0
+    assert bc.extract_laser(img, background=truth.background, offset_sd=0.0).offset_sd == 0.0
+    with pytest.raises(ValueError, match="offset_sd"):
+        bc.extract_laser(img, offset_sd=-0.1)

@@ -253,3 +253,16 @@ def test_read_table_optional_columns_only_when_asked(tmp_path):
     t = read_table(_write(tmp_path, "u,v,plane\n1,2,3\n"), required=("u",), optional=("v",))
     assert set(t.columns) == {"u", "v"}
     assert t.where(0, "u").endswith("line 2, column 'u'")
+
+
+def test_offset_sd_line_is_read(tmp_path):
+    # extract writes '# offset_sd: SD' (px); calibrate adds its variance to u0 and v0
+    data = load_laser_data(_write(tmp_path, "# image_size: 800x600\n# offset_sd: 0.02\n" + GOOD))
+    assert data.pixel_table.meta == {"image_size": (800, 600), "offset_sd": 0.02}
+    assert "offset_sd" not in load_laser_data(_write(tmp_path, GOOD, "plain.csv")).pixel_table.meta
+
+
+@pytest.mark.parametrize("value", ["-0.1", "nan", "abc", "inf"])
+def test_offset_sd_line_rejects(tmp_path, value):
+    with pytest.raises(InputError, match=r"laser.csv, line 1: offset_sd"):
+        load_laser_data(_write(tmp_path, f"# offset_sd: {value}\n" + GOOD))

@@ -496,3 +496,24 @@ def test_pooled_seed_scatter_is_within_its_chi_square_band():
     pooled = np.mean(np.square(np.concatenate([_RATIOS[r] for r in ROOMS_FOR_ESS])))
     lo, hi = stats.chi2(18).ppf([0.005, 0.995]) / 18
     assert lo < pooled < hi, pooled
+
+
+def test_offset_sd_adds_draws_to_the_principal_point_only():
+    # the same chain with and without a shared translation of sd 0.5 px: the u0, v0 samples
+    # differ by independent N(0, 0.5^2) draws, every other sample is the same (short chains:
+    # convergence is not the point). The draws' sd over 2 x 50 samples: 0.5 +- 0.035, so
+    # the 0.35-0.65 band fails with probability < 1e-4.
+    ds = _room(60)
+    kw = {"max_steps": 100, "n_samples": 50, "n_tune": 30, "rng": 7}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.NotConvergedWarning)
+        a = _sample(ds, **kw)
+        b = _sample(ds, offset_sd=0.5, **kw)
+    d = b.param_samples - a.param_samples
+    np.testing.assert_array_equal(d[:, [0, 1, 2, 3, 6, 7]], 0.0)
+    assert 0.35 < np.std(d[:, 4:6]) < 0.65 and abs(np.corrcoef(d[:, 4], d[:, 5])[0, 1]) < 0.6
+    np.testing.assert_array_equal(b.point_samples, a.point_samples)
+    np.testing.assert_allclose(np.diag(b.laplace_cov7 - a.laplace_cov7),
+                               [0, 0, 0, 0.25, 0.25, 0, 0], atol=1e-12)
+    with pytest.raises(ValueError, match="offset_sd"):
+        _sample(ds, offset_sd=float("nan"))
