@@ -9,11 +9,15 @@ Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import log_expit
 
 from ..sensor.laser import cone_height
 
+_LOG2PI = np.log(2 * np.pi)
+
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
-           "whiten", "whiten_pair"]
+           "whiten", "whiten_pair", "marginal_sum", "marginal_block",
+           "point_columns"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -212,3 +216,170 @@ def _with_outlier_term(out, outlier_resp, logit_w):
         w_frac = 1.0 / (1.0 + np.exp(-np.asarray(logit_w, dtype=float)))
         out.append(np.sum(outlier_resp - w_frac[..., None], -1))
     return np.stack(out, -1)
+
+
+def point_columns(lik):
+    """Contiguous per-point columns of :func:`marginal_sum`, cached on ``lik`` (a block
+    likelihood has its own: :mod:`~bayescal.likelihood.point_blocks` drops the cache)."""
+    cols = lik.__dict__.get("_marginal_columns")
+    if cols is None:
+        px, ap = lik.pixels, lik.approx
+        cols = {"pu": px[:, 0].copy(), "pv": px[:, 1].copy(), "ax": ap[:, 0].copy(),
+                "ay": ap[:, 1].copy(), "az": ap[:, 2].copy(),
+                "rows": float(np.sum(lik._n_rows))}
+        if not lik.infer_scene:
+            cols.update(wx=lik.w_scene[:, 0].copy(), wy=lik.w_scene[:, 1].copy(),
+                        wz=lik.w_scene[:, 2].copy(), log_w=float(np.sum(lik._log_w_given)))
+        else:
+            cols["log_rho"] = float(np.sum(np.log(lik.rho)))
+        lik._marginal_columns = cols
+    return cols
+
+
+def marginal_block(lik, psi, q0, n_iter):
+    """``(total,)``: the sum over points (W,) of the log marginals of a
+    :class:`~bayescal.likelihood.points.LaserLikelihood` (one block of points): by
+    :func:`marginal_sum` where it applies (the aligned cone: ``lik.n_geo`` 7, no per-point
+    pixel covariances, ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)), else by ``laplace``'s
+    per-point terms."""
+    psi = np.asarray(psi, dtype=float)
+    if not (lik.n_geo == 7 and psi.ndim == 2 and getattr(lik, "px_white", None) is None
+            and np.ndim(q0) in (2, 3) and np.shape(q0)[-1] == 2):
+        return (lik._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+    theta, extra = psi[:, :7], psi[:, 7:]
+    sig = np.exp(extra[:, 0]) if lik.infer_px else np.full(len(psi), lik.sigma_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (marginal_sum(lik, theta, extra, sig, q0, n_iter),)
+
+
+def _walker_terms(theta, sig):
+    """Per-walker factors (W, 1) of :func:`_fused_terms`; ``inv_s`` a float when every
+    walker has the same pixel noise (then the pixels' share is per point)."""
+    t = theta[:, :, None]
+    inv = 1.0 / sig
+    inv_s = float(inv[0]) if np.all(inv == inv[0]) else inv[:, None]
+    return {"xi": t[:, 0], "h": t[:, 5], "iT": 1.0 / np.tan(t[:, 6]), "inv_s": inv_s,
+            "A": t[:, 1] * inv_s, "B": t[:, 2] * inv_s, "cu": t[:, 3] * inv_s,
+            "cv": t[:, 4] * inv_s}
+
+
+def _fused_terms(p, c, x, y, w, keep_cp):
+    """:func:`point_terms` of the aligned cone in fewer passes (in place, rho-based slopes):
+    ``(rr, (C00, C01, C11), g0, g1, Cp or None)`` with ``C = Cp + Cs``. ``x, y`` (N,) on
+    the first Gauss-Newton pass (the shared start: per-point work stays (N,)), else (W, N);
+    ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
+    xi, iT, inv_s = p["xi"], p["iT"], p["inv_s"]
+    wx, wy, wz = w
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    ir = 1.0 / rho
+    z = rho * iT
+    z -= p["h"]
+    r = z * z
+    r += rho2
+    np.sqrt(r, out=r)
+    D = xi * r
+    D -= z
+    bad = D <= 0
+    iD = np.divide(1.0, D, out=D)
+    if bad.any():
+        iD[bad] = np.nan
+    t = z * iT                                      # d D / d q = (x, y) / rho * k, k:
+    t += rho
+    t *= xi
+    t /= r
+    t -= iT
+    t *= iD
+    a, b = p["A"] * iD, p["B"] * iD                 # gu / (s D), gv / (s D)
+    ru = a * x
+    ru += p["cu"]
+    ru -= c["pu"] * inv_s
+    rv = b * y
+    rv += p["cv"]
+    rv -= c["pv"] * inv_s
+    xx, yy, xy = x * x * ir, y * y * ir, x * y * ir
+    ux = xx * t
+    np.subtract(1.0, ux, out=ux)
+    ux *= a                                         # d ru / d x
+    vy = yy * t
+    np.subtract(1.0, vy, out=vy)
+    vy *= b                                         # d rv / d y
+    pm = xy * t
+    nuy, nvx = a * pm, b * pm                       # -d ru / d y, -d rv / d x
+    cp = (ux * ux + nvx * nvx, -(ux * nuy + nvx * vy), nuy * nuy + vy * vy)
+    g0 = ux * ru - nvx * rv
+    g1 = vy * rv - nuy * ru
+    rr = ru * ru
+    rr += rv * rv
+    sx, sy = (wz * x * ir) * iT, (wz * y * ir) * iT   # wz dz/dx, wz dz/dy
+    rx, ry = (x - c["ax"]) * wx, (y - c["ay"]) * wy
+    rz = z - c["az"]
+    rz *= wz
+    g0 += wx * rx + sx * rz
+    g1 += wy * ry + sy * rz
+    rr += rx * rx + ry * ry + rz * rz
+    cs = (wx * wx + sx * sx, sx * sy, wy * wy + sy * sy)
+    C = tuple(a_ + b_ for a_, b_ in zip(cp, cs, strict=True))
+    return rr, C, g0, g1, ((cp, cs) if keep_cp else None)
+
+
+def marginal_sum(lik, theta, extra, sig, q0, n_iter):
+    """Sum over points of :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`'s
+    per-point log marginals, shape (W,), for the aligned cone (:func:`marginal_block`):
+    the same Gauss-Newton steps and terms, fused (the sampler's hot path)."""
+    c = point_columns(lik)
+    p = _walker_terms(theta, sig)
+    W, n = len(theta), lik.n
+    if lik.infer_scene:
+        kappa = np.exp(extra[:, int(lik.infer_px)])
+        ws = 1.0 / (kappa[:, None] * lik.rho)
+        w = (ws, ws, ws)
+        sum_log_w = -3.0 * (n * np.log(kappa) + c["log_rho"])
+    else:
+        w, sum_log_w = (c["wx"], c["wy"], c["wz"]), c["log_w"]
+    flat = lik.point_prior == "flat"
+    sp = (sig / lik.ref_sigma_px) ** 2
+    ss = (kappa / lik.ref_kappa) ** 2 if lik.infer_scene else np.ones(W)
+    # Jeffreys prior at the sampled noise: |C|^(1/2) cancels the Laplace determinant
+    cancel = not flat and np.all(sp == 1.0) and np.all(ss == 1.0)
+    q0 = np.asarray(q0, dtype=float)
+    x, y = q0[..., 0], q0[..., 1]
+    for it in range(n_iter + 1):
+        last = it == n_iter
+        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last and not cancel
+                                                       and not flat)
+        det = C00 * C11
+        det -= C01 * C01
+        d0 = C11 * g0
+        d0 -= C01 * g1
+        d0 /= det
+        d1 = C00 * g1
+        d1 -= C01 * g0
+        d1 /= det
+        if not last:
+            x, y = x - d0, y - d1
+    m = g0 * d0
+    m += g1 * d1
+    np.subtract(rr, m, out=m)                           # the mode's residual |R|^2
+    total = -0.5 * m.sum(axis=-1)
+    if not cancel:
+        total -= 0.5 * np.log(det).sum(axis=-1)
+    if not (flat or cancel):
+        c00, c01, c11 = (a * sp[:, None] + b_ * ss[:, None]
+                         for a, b_ in zip(*parts, strict=True))
+        total += 0.5 * np.log(c00 * c11 - c01 * c01).sum(axis=-1)
+    total += (n - 0.5 * c["rows"]) * _LOG2PI + sum_log_w - 2.0 * n * np.log(sig)
+    if lik.outliers:
+        total += _mix_sum(extra[:, -1], m, lik._n_rows, lik.outlier_scale)
+    return total
+
+
+def _mix_sum(logit_w, m, n_rows, scale):
+    """Sum over points of ``log((1 - w) + w L_out / L_in)``: the outlier mixture's share of
+    the log marginal (:func:`~bayescal.likelihood.outliers.mix` with ``laplace=True``), from
+    each point's residual ``m`` (W, N) at its mode."""
+    delta = m * (0.5 * (1.0 - 1.0 / scale**2))
+    delta += (2.0 - n_rows) * np.log(scale)
+    delta += log_expit(logit_w)[:, None]
+    np.logaddexp(log_expit(-logit_w)[:, None], delta, out=delta)
+    return delta.sum(axis=-1)

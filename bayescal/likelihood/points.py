@@ -25,7 +25,7 @@ from .._validation import as_pixels, as_points, check_positive
 from ..sensor.camera import project_theta
 from ..sensor.laser import cone_points_geo, triangulate_geo
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
-from .point_algebra import grad_terms, pixel_whitening, point_terms, whiten
+from .point_algebra import grad_terms, marginal_block, pixel_whitening, point_terms, whiten
 from .point_blocks import clear_blocks, concat_blocks, sum_blocks
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
 from .scene_noise import scene_range
@@ -146,7 +146,7 @@ class LaserLikelihood:
 
     def __getstate__(self):
         state = self.__dict__.copy()        # the point blocks are a cache of views: rebuilt
-        state.pop("_point_block_cache", None)
+        state.pop("_point_block_cache", None), state.pop("_marginal_columns", None)
         return state
 
     def set_reference_noise(self, *, sigma_px=None, kappa=None):
@@ -365,7 +365,7 @@ class LaserLikelihood:
         return np.where(np.isfinite(total), total, -np.inf)
 
     def _marginal_block(self, psi, q0, n_iter):
-        return (self._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+        return marginal_block(self, psi, q0, n_iter)        # the aligned cone: fused passes
 
     def outlier_prob(self, psi, q0, *, n_iter=4):
         """Probability that each point is an outlier given ``psi``, shape (..., N).
