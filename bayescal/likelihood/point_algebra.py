@@ -263,16 +263,16 @@ def _walker_terms(theta, sig):
             "cv": t[:, 4] * inv_s}
 
 
-def _fused_terms(p, c, x, y, w, keep_cp):
+def _fused_terms(p, c, x, y, w, last, keep_cp):
     """:func:`point_terms` of the aligned cone in fewer passes (in place, rho-based slopes):
-    ``(rr, (C00, C01, C11), g0, g1, Cp or None)`` with ``C = Cp + Cs``. ``x, y`` (N,) on
-    the first Gauss-Newton pass (the shared start: per-point work stays (N,)), else (W, N);
-    ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
+    ``(rr, (C00, C01, C11), g0, g1, (Cp, Cs) or None)`` with ``C = Cp + Cs`` (``rr`` only
+    on the ``last`` pass). ``x, y`` (N,) on the first Gauss-Newton pass (the shared start:
+    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
     xi, iT, inv_s = p["xi"], p["iT"], p["inv_s"]
     wx, wy, wz = w
     rho2 = x * x + y * y
     rho = np.sqrt(rho2)
-    ir = 1.0 / rho
+    cx, cy = x / rho, y / rho
     z = rho * iT
     z -= p["h"]
     r = z * z
@@ -280,9 +280,9 @@ def _fused_terms(p, c, x, y, w, keep_cp):
     np.sqrt(r, out=r)
     D = xi * r
     D -= z
-    bad = D <= 0
+    bad = None if D.min() > 0 else ~(D > 0)         # NaN there, as point_terms
     iD = np.divide(1.0, D, out=D)
-    if bad.any():
+    if bad is not None:
         iD[bad] = np.nan
     t = z * iT                                      # d D / d q = (x, y) / rho * k, k:
     t += rho
@@ -297,30 +297,31 @@ def _fused_terms(p, c, x, y, w, keep_cp):
     rv = b * y
     rv += p["cv"]
     rv -= c["pv"] * inv_s
-    xx, yy, xy = x * x * ir, y * y * ir, x * y * ir
-    ux = xx * t
+    ux = (x * cx) * t
     np.subtract(1.0, ux, out=ux)
     ux *= a                                         # d ru / d x
-    vy = yy * t
+    vy = (y * cy) * t
     np.subtract(1.0, vy, out=vy)
     vy *= b                                         # d rv / d y
-    pm = xy * t
+    pm = (x * cy) * t
     nuy, nvx = a * pm, b * pm                       # -d ru / d y, -d rv / d x
-    cp = (ux * ux + nvx * nvx, -(ux * nuy + nvx * vy), nuy * nuy + vy * vy)
     g0 = ux * ru - nvx * rv
     g1 = vy * rv - nuy * ru
-    rr = ru * ru
-    rr += rv * rv
-    sx, sy = (wz * x * ir) * iT, (wz * y * ir) * iT   # wz dz/dx, wz dz/dy
+    sx, sy = (wz * cx) * iT, (wz * cy) * iT           # wz dz/dx, wz dz/dy
     rx, ry = (x - c["ax"]) * wx, (y - c["ay"]) * wy
     rz = z - c["az"]
     rz *= wz
     g0 += wx * rx + sx * rz
     g1 += wy * ry + sy * rz
-    rr += rx * rx + ry * ry + rz * rz
+    rr = None
+    if last:
+        rr = ru * ru
+        rr += rv * rv
+        rr += rx * rx + ry * ry + rz * rz
+    cp = (ux * ux + nvx * nvx, ux * nuy + nvx * vy, nuy * nuy + vy * vy)   # cp[1]: -Cp01
     cs = (wx * wx + sx * sx, sx * sy, wy * wy + sy * sy)
-    C = tuple(a_ + b_ for a_, b_ in zip(cp, cs, strict=True))
-    return rr, C, g0, g1, ((cp, cs) if keep_cp else None)
+    C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
+    return rr, C, g0, g1, (((cp[0], -cp[1], cp[2]), cs) if keep_cp else None)
 
 
 def marginal_sum(lik, theta, extra, sig, q0, n_iter):
@@ -346,8 +347,8 @@ def marginal_sum(lik, theta, extra, sig, q0, n_iter):
     x, y = q0[..., 0], q0[..., 1]
     for it in range(n_iter + 1):
         last = it == n_iter
-        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last and not cancel
-                                                       and not flat)
+        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last,
+                                                          last and not (cancel or flat))
         det = C00 * C11
         det -= C01 * C01
         d0 = C11 * g0
