@@ -9,7 +9,7 @@ Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import log_expit
+from scipy.special import expit, log_expit
 
 from ..sensor.laser import cone_height
 
@@ -236,20 +236,37 @@ def point_columns(lik):
     return cols
 
 
-def marginal_block(lik, psi, q0, n_iter):
-    """``(total,)``: the sum over points (W,) of the log marginals of a
-    :class:`~bayescal.likelihood.points.LaserLikelihood` (one block of points): by
-    :func:`marginal_sum` where it applies (the aligned cone: ``lik.n_geo`` 7, no per-point
-    pixel covariances, ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)), else by ``laplace``'s
-    per-point terms."""
+def _fused_applies(lik, psi, q0):
+    """Whether :func:`marginal_sum` covers this call: the aligned cone (``lik.n_geo`` 7),
+    no per-point pixel covariances, ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)."""
+    return (lik.n_geo == 7 and np.ndim(psi) == 2 and getattr(lik, "px_white", None) is None
+            and np.ndim(q0) in (2, 3) and np.shape(q0)[-1] == 2)
+
+
+def _fused_call(lik, psi, q0, n_iter, modes):
     psi = np.asarray(psi, dtype=float)
-    if not (lik.n_geo == 7 and psi.ndim == 2 and getattr(lik, "px_white", None) is None
-            and np.ndim(q0) in (2, 3) and np.shape(q0)[-1] == 2):
-        return (lik._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
     theta, extra = psi[:, :7], psi[:, 7:]
     sig = np.exp(extra[:, 0]) if lik.infer_px else np.full(len(psi), lik.sigma_px)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        return marginal_sum(lik, theta, extra, sig, q0, n_iter, modes=modes), theta, extra, sig
+
+
+def marginal_block(lik, psi, q0, n_iter, *, gradient=False):
+    """``(total,)``: the sum over points (W,) of the log marginals of a
+    :class:`~bayescal.likelihood.points.LaserLikelihood` (one block of points): by
+    :func:`marginal_sum` where it applies (:func:`_fused_applies`), else by ``laplace``'s
+    per-point terms. With ``gradient``: ``(total, grad)`` by :func:`marginal_sum` (the
+    value exactly the same, its modes and outlier probabilities for :func:`grad_terms`),
+    or None where it does not apply."""
+    if not _fused_applies(lik, psi, q0):
+        return None if gradient else (lik._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+    if not gradient:
+        return (_fused_call(lik, psi, q0, n_iter, False)[0],)
+    (total, x, y, r), theta, extra, sig = _fused_call(lik, psi, q0, n_iter, True)
+    _, w, _ = lik.noise(extra)
+    lw = extra[..., -1] if lik.outliers else None
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (marginal_sum(lik, theta, extra, sig, q0, n_iter),)
+        return total, grad_terms(lik, theta, x, y, sig, w, outlier_resp=r, logit_w=lw)
 
 
 def _walker_terms(theta, sig):
@@ -324,10 +341,36 @@ def _fused_terms(p, c, x, y, w, last, keep_cp):
     return rr, C, g0, g1, (((cp[0], -cp[1], cp[2]), cs) if keep_cp else None)
 
 
-def marginal_sum(lik, theta, extra, sig, q0, n_iter):
+def _fused_newton(p, c, x, y, w, n_iter, keep_cp):
+    """The Gauss-Newton passes of :func:`marginal_sum`: at the last iterate ``(x, y)``, its
+    residual at the mode ``m = |R|^2 - g^T C^-1 g``, ``det C``, the next step ``(d0, d1)``
+    and (``keep_cp``) the pixel and scene parts of ``C``."""
+    for it in range(n_iter + 1):
+        last = it == n_iter
+        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last,
+                                                          last and keep_cp)
+        det = C00 * C11
+        det -= C01 * C01
+        d0 = C11 * g0
+        d0 -= C01 * g1
+        d0 /= det
+        d1 = C00 * g1
+        d1 -= C01 * g0
+        d1 /= det
+        if not last:
+            x, y = x - d0, y - d1
+    m = g0 * d0
+    m += g1 * d1
+    np.subtract(rr, m, out=m)
+    return {"x": x, "y": y, "m": m, "det": det, "d": (d0, d1), "parts": parts}
+
+
+def marginal_sum(lik, theta, extra, sig, q0, n_iter, *, modes=False):
     """Sum over points of :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`'s
     per-point log marginals, shape (W,), for the aligned cone (:func:`marginal_block`):
-    the same Gauss-Newton steps and terms, fused (the sampler's hot path)."""
+    the same Gauss-Newton steps and terms, fused (the sampler's hot path). With ``modes``
+    also the modes ``x, y`` (W, N) one step past the last iterate and the outlier
+    probabilities (W, N) (None without the mixture), as the gradient needs them."""
     c = point_columns(lik)
     p = _walker_terms(theta, sig)
     W, n = len(theta), lik.n
@@ -344,43 +387,32 @@ def marginal_sum(lik, theta, extra, sig, q0, n_iter):
     # Jeffreys prior at the sampled noise: |C|^(1/2) cancels the Laplace determinant
     cancel = not flat and np.all(sp == 1.0) and np.all(ss == 1.0)
     q0 = np.asarray(q0, dtype=float)
-    x, y = q0[..., 0], q0[..., 1]
-    for it in range(n_iter + 1):
-        last = it == n_iter
-        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last,
-                                                          last and not (cancel or flat))
-        det = C00 * C11
-        det -= C01 * C01
-        d0 = C11 * g0
-        d0 -= C01 * g1
-        d0 /= det
-        d1 = C00 * g1
-        d1 -= C01 * g0
-        d1 /= det
-        if not last:
-            x, y = x - d0, y - d1
-    m = g0 * d0
-    m += g1 * d1
-    np.subtract(rr, m, out=m)                           # the mode's residual |R|^2
-    total = -0.5 * m.sum(axis=-1)
+    g = _fused_newton(p, c, q0[..., 0], q0[..., 1], w, n_iter, not (cancel or flat))
+    total = -0.5 * g["m"].sum(axis=-1)
     if not cancel:
-        total -= 0.5 * np.log(det).sum(axis=-1)
+        total -= 0.5 * np.log(g["det"]).sum(axis=-1)
     if not (flat or cancel):
         c00, c01, c11 = (a * sp[:, None] + b_ * ss[:, None]
-                         for a, b_ in zip(*parts, strict=True))
+                         for a, b_ in zip(*g["parts"], strict=True))
         total += 0.5 * np.log(c00 * c11 - c01 * c01).sum(axis=-1)
     total += (n - 0.5 * c["rows"]) * _LOG2PI + sum_log_w - 2.0 * n * np.log(sig)
+    r = None
     if lik.outliers:
-        total += _mix_sum(extra[:, -1], m, lik._n_rows, lik.outlier_scale)
-    return total
+        mixed, r = _mix_sum(extra[:, -1], g["m"], lik._n_rows, lik.outlier_scale, modes)
+        total += mixed
+    if not modes:
+        return total
+    return total, g["x"] - g["d"][0], g["y"] - g["d"][1], r
 
 
-def _mix_sum(logit_w, m, n_rows, scale):
+def _mix_sum(logit_w, m, n_rows, scale, resp=False):
     """Sum over points of ``log((1 - w) + w L_out / L_in)``: the outlier mixture's share of
     the log marginal (:func:`~bayescal.likelihood.outliers.mix` with ``laplace=True``), from
-    each point's residual ``m`` (W, N) at its mode."""
+    each point's residual ``m`` (W, N) at its mode; with ``resp`` the outlier probabilities
+    ``w L_out / ((1 - w) L_in + w L_out)`` (W, N) too, else None."""
     delta = m * (0.5 * (1.0 - 1.0 / scale**2))
     delta += (2.0 - n_rows) * np.log(scale)
+    r = expit(delta + logit_w[:, None]) if resp else None
     delta += log_expit(logit_w)[:, None]
     np.logaddexp(log_expit(-logit_w)[:, None], delta, out=delta)
-    return delta.sum(axis=-1)
+    return delta.sum(axis=-1), r

@@ -46,3 +46,21 @@ def test_fused_sum_is_minus_inf_outside_the_domain():
     got = lik.log_marginal(psi, q0, n_iter=1)
     assert np.isneginf(got[1]) and np.array_equal(np.isinf(got), np.isinf(want))
     np.testing.assert_allclose(got[[0, 2, 3, 4]], want[[0, 2, 3, 4]], rtol=1e-12)
+
+
+@pytest.mark.parametrize("sigma_px, sigma_scene, outliers", [
+    (True, True, True), (False, False, True), (True, True, False)])
+def test_fused_gradient_is_the_general_paths(sigma_px, sigma_scene, outliers, monkeypatch):
+    """The gradient from the fused modes and outlier probabilities against the general
+    path's (laplace's modes, one more step); its value exactly log_marginal's."""
+    from bayescal.likelihood import point_algebra
+
+    lik, psi, q0 = _case(sigma_px, sigma_scene, outliers, "jeffreys")
+    value, grad = lik.grad_log_marginal(psi, q0, n_iter=2)
+    np.testing.assert_array_equal(value, lik.log_marginal(psi, q0, n_iter=2))
+    monkeypatch.setattr(point_algebra, "_fused_applies", lambda *a: False)
+    v_gen, g_gen = lik.grad_log_marginal(psi, q0, n_iter=2)
+    np.testing.assert_allclose(value, v_gen, rtol=1e-12)
+    # the same modes to rounding: the gradient's terms agree to ~1e-9 of the largest
+    scale = np.max(np.abs(g_gen), axis=1, keepdims=True)
+    assert np.all(np.abs(grad - g_gen) < 1e-7 * scale), (grad - g_gen) / scale
