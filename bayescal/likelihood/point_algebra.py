@@ -9,11 +9,15 @@ Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import expit, log_expit
 
 from ..sensor.laser import cone_height
 
+_LOG2PI = np.log(2 * np.pi)
+
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
-           "whiten", "whiten_pair"]
+           "whiten", "whiten_pair", "marginal_sum", "marginal_block",
+           "point_columns"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -212,3 +216,203 @@ def _with_outlier_term(out, outlier_resp, logit_w):
         w_frac = 1.0 / (1.0 + np.exp(-np.asarray(logit_w, dtype=float)))
         out.append(np.sum(outlier_resp - w_frac[..., None], -1))
     return np.stack(out, -1)
+
+
+def point_columns(lik):
+    """Contiguous per-point columns of :func:`marginal_sum`, cached on ``lik`` (a block
+    likelihood has its own: :mod:`~bayescal.likelihood.point_blocks` drops the cache)."""
+    cols = lik.__dict__.get("_marginal_columns")
+    if cols is None:
+        px, ap = lik.pixels, lik.approx
+        cols = {"pu": px[:, 0].copy(), "pv": px[:, 1].copy(), "ax": ap[:, 0].copy(),
+                "ay": ap[:, 1].copy(), "az": ap[:, 2].copy(),
+                "rows": float(np.sum(lik._n_rows))}
+        if not lik.infer_scene:
+            cols.update(wx=lik.w_scene[:, 0].copy(), wy=lik.w_scene[:, 1].copy(),
+                        wz=lik.w_scene[:, 2].copy(), log_w=float(np.sum(lik._log_w_given)))
+        else:
+            cols["log_rho"] = float(np.sum(np.log(lik.rho)))
+        lik._marginal_columns = cols
+    return cols
+
+
+def _fused_applies(lik, psi, q0):
+    """Whether :func:`marginal_sum` covers this call: the aligned cone (``lik.n_geo`` 7),
+    no per-point pixel covariances, ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)."""
+    return (lik.n_geo == 7 and np.ndim(psi) == 2 and getattr(lik, "px_white", None) is None
+            and np.ndim(q0) in (2, 3) and np.shape(q0)[-1] == 2)
+
+
+def _fused_call(lik, psi, q0, n_iter, modes):
+    psi = np.asarray(psi, dtype=float)
+    theta, extra = psi[:, :7], psi[:, 7:]
+    sig = np.exp(extra[:, 0]) if lik.infer_px else np.full(len(psi), lik.sigma_px)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        return marginal_sum(lik, theta, extra, sig, q0, n_iter, modes=modes), theta, extra, sig
+
+
+def marginal_block(lik, psi, q0, n_iter, *, gradient=False):
+    """``(total,)``: the sum over points (W,) of the log marginals of a
+    :class:`~bayescal.likelihood.points.LaserLikelihood` (one block of points): by
+    :func:`marginal_sum` where it applies (:func:`_fused_applies`), else by ``laplace``'s
+    per-point terms. With ``gradient``: ``(total, grad)`` by :func:`marginal_sum` (the
+    value exactly the same, its modes and outlier probabilities for :func:`grad_terms`),
+    or None where it does not apply."""
+    if not _fused_applies(lik, psi, q0):
+        return None if gradient else (lik._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+    if not gradient:
+        return (_fused_call(lik, psi, q0, n_iter, False)[0],)
+    (total, x, y, r), theta, extra, sig = _fused_call(lik, psi, q0, n_iter, True)
+    _, w, _ = lik.noise(extra)
+    lw = extra[..., -1] if lik.outliers else None
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total, grad_terms(lik, theta, x, y, sig, w, outlier_resp=r, logit_w=lw)
+
+
+def _walker_terms(theta, sig):
+    """Per-walker factors (W, 1) of :func:`_fused_terms`; ``inv_s`` a float when every
+    walker has the same pixel noise (then the pixels' share is per point)."""
+    t = theta[:, :, None]
+    inv = 1.0 / sig
+    inv_s = float(inv[0]) if np.all(inv == inv[0]) else inv[:, None]
+    return {"xi": t[:, 0], "h": t[:, 5], "iT": 1.0 / np.tan(t[:, 6]), "inv_s": inv_s,
+            "A": t[:, 1] * inv_s, "B": t[:, 2] * inv_s, "cu": t[:, 3] * inv_s,
+            "cv": t[:, 4] * inv_s}
+
+
+def _fused_terms(p, c, x, y, w, last, keep_cp):
+    """:func:`point_terms` of the aligned cone in fewer passes (in place, rho-based slopes):
+    ``(rr, (C00, C01, C11), g0, g1, (Cp, Cs) or None)`` with ``C = Cp + Cs`` (``rr`` only
+    on the ``last`` pass). ``x, y`` (N,) on the first Gauss-Newton pass (the shared start:
+    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
+    xi, iT, inv_s = p["xi"], p["iT"], p["inv_s"]
+    wx, wy, wz = w
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    cx, cy = x / rho, y / rho
+    z = rho * iT
+    z -= p["h"]
+    r = z * z
+    r += rho2
+    np.sqrt(r, out=r)
+    D = xi * r
+    D -= z
+    bad = None if D.min() > 0 else ~(D > 0)         # NaN there, as point_terms
+    iD = np.divide(1.0, D, out=D)
+    if bad is not None:
+        iD[bad] = np.nan
+    t = z * iT                                      # d D / d q = (x, y) / rho * k, k:
+    t += rho
+    t *= xi
+    t /= r
+    t -= iT
+    t *= iD
+    a, b = p["A"] * iD, p["B"] * iD                 # gu / (s D), gv / (s D)
+    ru = a * x
+    ru += p["cu"]
+    ru -= c["pu"] * inv_s
+    rv = b * y
+    rv += p["cv"]
+    rv -= c["pv"] * inv_s
+    ux = (x * cx) * t
+    np.subtract(1.0, ux, out=ux)
+    ux *= a                                         # d ru / d x
+    vy = (y * cy) * t
+    np.subtract(1.0, vy, out=vy)
+    vy *= b                                         # d rv / d y
+    pm = (x * cy) * t
+    nuy, nvx = a * pm, b * pm                       # -d ru / d y, -d rv / d x
+    g0 = ux * ru - nvx * rv
+    g1 = vy * rv - nuy * ru
+    sx, sy = (wz * cx) * iT, (wz * cy) * iT           # wz dz/dx, wz dz/dy
+    rx, ry = (x - c["ax"]) * wx, (y - c["ay"]) * wy
+    rz = z - c["az"]
+    rz *= wz
+    g0 += wx * rx + sx * rz
+    g1 += wy * ry + sy * rz
+    rr = None
+    if last:
+        rr = ru * ru
+        rr += rv * rv
+        rr += rx * rx + ry * ry + rz * rz
+    cp = (ux * ux + nvx * nvx, ux * nuy + nvx * vy, nuy * nuy + vy * vy)   # cp[1]: -Cp01
+    cs = (wx * wx + sx * sx, sx * sy, wy * wy + sy * sy)
+    C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
+    return rr, C, g0, g1, (((cp[0], -cp[1], cp[2]), cs) if keep_cp else None)
+
+
+def _fused_newton(p, c, x, y, w, n_iter, keep_cp):
+    """The Gauss-Newton passes of :func:`marginal_sum`: at the last iterate ``(x, y)``, its
+    residual at the mode ``m = |R|^2 - g^T C^-1 g``, ``det C``, the next step ``(d0, d1)``
+    and (``keep_cp``) the pixel and scene parts of ``C``."""
+    for it in range(n_iter + 1):
+        last = it == n_iter
+        rr, (C00, C01, C11), g0, g1, parts = _fused_terms(p, c, x, y, w, last,
+                                                          last and keep_cp)
+        det = C00 * C11
+        det -= C01 * C01
+        d0 = C11 * g0
+        d0 -= C01 * g1
+        d0 /= det
+        d1 = C00 * g1
+        d1 -= C01 * g0
+        d1 /= det
+        if not last:
+            x, y = x - d0, y - d1
+    m = g0 * d0
+    m += g1 * d1
+    np.subtract(rr, m, out=m)
+    return {"x": x, "y": y, "m": m, "det": det, "d": (d0, d1), "parts": parts}
+
+
+def marginal_sum(lik, theta, extra, sig, q0, n_iter, *, modes=False):
+    """Sum over points of :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`'s
+    per-point log marginals, shape (W,), for the aligned cone (:func:`marginal_block`):
+    the same Gauss-Newton steps and terms, fused (the sampler's hot path). With ``modes``
+    also the modes ``x, y`` (W, N) one step past the last iterate and the outlier
+    probabilities (W, N) (None without the mixture), as the gradient needs them."""
+    c = point_columns(lik)
+    p = _walker_terms(theta, sig)
+    W, n = len(theta), lik.n
+    if lik.infer_scene:
+        kappa = np.exp(extra[:, int(lik.infer_px)])
+        ws = 1.0 / (kappa[:, None] * lik.rho)
+        w = (ws, ws, ws)
+        sum_log_w = -3.0 * (n * np.log(kappa) + c["log_rho"])
+    else:
+        w, sum_log_w = (c["wx"], c["wy"], c["wz"]), c["log_w"]
+    flat = lik.point_prior == "flat"
+    sp = (sig / lik.ref_sigma_px) ** 2
+    ss = (kappa / lik.ref_kappa) ** 2 if lik.infer_scene else np.ones(W)
+    # Jeffreys prior at the sampled noise: |C|^(1/2) cancels the Laplace determinant
+    cancel = not flat and np.all(sp == 1.0) and np.all(ss == 1.0)
+    q0 = np.asarray(q0, dtype=float)
+    g = _fused_newton(p, c, q0[..., 0], q0[..., 1], w, n_iter, not (cancel or flat))
+    total = -0.5 * g["m"].sum(axis=-1)
+    if not cancel:
+        total -= 0.5 * np.log(g["det"]).sum(axis=-1)
+    if not (flat or cancel):
+        c00, c01, c11 = (a * sp[:, None] + b_ * ss[:, None]
+                         for a, b_ in zip(*g["parts"], strict=True))
+        total += 0.5 * np.log(c00 * c11 - c01 * c01).sum(axis=-1)
+    total += (n - 0.5 * c["rows"]) * _LOG2PI + sum_log_w - 2.0 * n * np.log(sig)
+    r = None
+    if lik.outliers:
+        mixed, r = _mix_sum(extra[:, -1], g["m"], lik._n_rows, lik.outlier_scale, modes)
+        total += mixed
+    if not modes:
+        return total
+    return total, g["x"] - g["d"][0], g["y"] - g["d"][1], r
+
+
+def _mix_sum(logit_w, m, n_rows, scale, resp=False):
+    """Sum over points of ``log((1 - w) + w L_out / L_in)``: the outlier mixture's share of
+    the log marginal (:func:`~bayescal.likelihood.outliers.mix` with ``laplace=True``), from
+    each point's residual ``m`` (W, N) at its mode; with ``resp`` the outlier probabilities
+    ``w L_out / ((1 - w) L_in + w L_out)`` (W, N) too, else None."""
+    delta = m * (0.5 * (1.0 - 1.0 / scale**2))
+    delta += (2.0 - n_rows) * np.log(scale)
+    r = expit(delta + logit_w[:, None]) if resp else None
+    delta += log_expit(logit_w)[:, None]
+    np.logaddexp(log_expit(-logit_w)[:, None], delta, out=delta)
+    return delta.sum(axis=-1), r

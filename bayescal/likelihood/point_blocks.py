@@ -41,6 +41,7 @@ def _block_size(lead_size):
 def _sub_likelihood(lik, sl):
     sub = copy.copy(lik)
     sub.__dict__.pop(_CACHE, None)
+    sub.__dict__.pop("_marginal_columns", None)     # point_algebra.point_columns: the block's own
     for name in _PER_POINT:
         value = getattr(lik, name, None)
         if isinstance(value, np.ndarray):

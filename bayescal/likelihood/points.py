@@ -25,7 +25,7 @@ from .._validation import as_pixels, as_points, check_positive
 from ..sensor.camera import project_theta
 from ..sensor.laser import cone_points_geo, triangulate_geo
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
-from .point_algebra import grad_terms, pixel_whitening, point_terms, whiten
+from .point_algebra import grad_terms, marginal_block, pixel_whitening, point_terms, whiten
 from .point_blocks import clear_blocks, concat_blocks, sum_blocks
 from .point_draws import draw_points  # re-exported: the point draws live beside the likelihood
 from .scene_noise import scene_range
@@ -146,7 +146,7 @@ class LaserLikelihood:
 
     def __getstate__(self):
         state = self.__dict__.copy()        # the point blocks are a cache of views: rebuilt
-        state.pop("_point_block_cache", None)
+        state.pop("_point_block_cache", None), state.pop("_marginal_columns", None)
         return state
 
     def set_reference_noise(self, *, sigma_px=None, kappa=None):
@@ -365,15 +365,13 @@ class LaserLikelihood:
         return np.where(np.isfinite(total), total, -np.inf)
 
     def _marginal_block(self, psi, q0, n_iter):
-        return (self._laplace_block(psi, q0, n_iter)[0].sum(axis=-1),)
+        return marginal_block(self, psi, q0, n_iter)        # the aligned cone: fused passes
 
     def outlier_prob(self, psi, q0, *, n_iter=4):
         """Probability that each point is an outlier given ``psi``, shape (..., N).
 
-        ``w L_out / ((1 - w) L_in + w L_out)`` with the points integrated out
-        (the Laplace step of :meth:`laplace`); NaN where a point leaves the
-        model's domain. Requires ``outliers=True``.
-        """
+        ``w L_out / ((1 - w) L_in + w L_out)`` with the points integrated out (the Laplace
+        step of :meth:`laplace`); NaN outside the model's domain. Needs ``outliers=True``."""
         if not self.outliers:
             raise ValueError("outlier_prob needs a likelihood built with outliers=True")
         return self._laplace_points(psi, q0, n_iter)[-1]
@@ -381,10 +379,9 @@ class LaserLikelihood:
     def min_residual(self, psi, q0, *, n_iter=4):
         """Each point's squared whitened residual norm at its conditional mode, (..., N).
 
-        ``min_q |R_i(theta, q)|^2`` (Gauss-Newton, the quadratic model's remaining
-        decrease included): about chi-square with ``n_rows - 2`` degrees of
-        freedom for an inlier at the true parameters; NaN outside the domain.
-        """
+        ``min_q |R_i(theta, q)|^2`` (Gauss-Newton, the quadratic model's remaining decrease
+        included): about chi-square with ``n_rows - 2`` degrees of freedom for an inlier at
+        the true parameters; NaN outside the domain."""
         theta, extra = self.split(psi)
         sig, w, _ = self.noise(extra)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -452,7 +449,11 @@ class LaserLikelihood:
         return value, np.where(np.isfinite(value)[..., None], grad, np.nan)
 
     def _grad_block(self, psi, q0, n_iter):
-        """One block's sum of the log marginal's per-point terms and its gradient."""
+        """One block's sum of the log marginal's per-point terms and its gradient (the
+        aligned cone: fused, :func:`~.point_algebra.marginal_block`, the value __call__'s)."""
+        fused = marginal_block(self, psi, q0, n_iter, gradient=True)
+        if fused is not None:
+            return fused
         per_point, x, y, *_, r = self._laplace_block(psi, q0, n_iter)   # one pass: laplace's
         theta, extra = self.split(psi)
         lw = extra[..., -1] if self.outliers else None
@@ -461,10 +462,9 @@ class LaserLikelihood:
             _, Cp, Cs, g0, g1 = self._point_terms(theta, x, y, sig, w)
             C00, C01, C11 = (a + b for a, b in zip(Cp, Cs, strict=True))
             det = C00 * C11 - C01 * C01
-            x = x - (C11 * g0 - C01 * g1) / det            # one more step: the modes
-            y = y - (C00 * g1 - C01 * g0) / det
-            grad = grad_terms(self, theta, x, y, sig, w, outlier_resp=r, logit_w=lw)
-        return per_point.sum(axis=-1), grad
+            x, y = x - (C11 * g0 - C01 * g1) / det, y - (C00 * g1 - C01 * g0) / det  # modes
+            return per_point.sum(axis=-1), grad_terms(self, theta, x, y, sig, w,
+                                                      outlier_resp=r, logit_w=lw)
 
     def _exact_terms(self, psi, q):
         """Per-point exact log density of (data, q) given psi, normalisers included."""
