@@ -321,7 +321,10 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     gates = {"off ring": np.abs(r - r_s) > np.clip(4 * sd_loc, gate_px, 3 * gate_px),
              "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * sd_loc),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
-             "misfit": chi2 > 30 * scale, "glint": (height > 4 * h_s) & (np.abs(r - r_s) > 0.5 * gate_px), "wide": width > 3 * w_s,
+             "misfit": chi2 > 30 * scale, "wide": width > 3 * w_s,
+             # brighter than its neighbours and off the ring (the laser on a bright patch
+             # of wall is brighter too, but on the ring)
+             "glint": (height > 4 * h_s) & (np.abs(r - r_s) > 0.5 * gate_px),
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
