@@ -335,9 +335,9 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     return lp, gates
 
 
-#: the clutter variance's factor (see _clutter_variance), measured: z rms near 1 without a
-#: laser-off image on both renderers (0.8; 0.7-0.9 moves it by about +-0.05)
-CLUTTER_K = 0.8
+#: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a
+#: laser-off image on both renderers' textured rooms (0.8 and 1.0 move it by about +-0.05)
+CLUTTER_K = 0.9
 
 
 def _clutter_variance(pol, k, var_img, width, height):
@@ -346,22 +346,30 @@ def _clutter_variance(pol, k, var_img, width, height):
     Texture at the beam's scale that the running median leaves in the high-passed profile
     moves the peak by about its slope times ``width^2 / height``, an error shared by
     neighbouring profiles that no scatter about the smoothed ring can reveal. Its size comes
-    from the high-passed samples 3-7 px either side of the peak: their mean square beyond the
-    pixel noise's (zero where only noise is left, as with a laser-off image), times
-    ``(CLUTTER_K width / height)^2``.
+    from five high-passed samples either side of the peak, past the stripe's tails: their
+    robust mean square beyond the pixel noise's variance (zero where only noise is left, as
+    with a laser-off image), times ``(CLUTTER_K width / height)^2``.
     """
     n, K = pol.high.shape
-    # five samples each side, past the stripe's own tails (3 of its sds, at least 3 px)
-    start = np.clip(np.ceil(3 * np.nan_to_num(median_filter(width, size=max(5, n // 36) | 1,
-                                                            mode="wrap"), nan=1.0)), 3, 10)
+    i = np.arange(n)[:, None]
+    # five samples each side, past the stripe's own tails: from 3 of its sds (at least 3
+    # px) or 1 px past where the profile first drops below a tenth of the peak (a
+    # saturated, flat-topped stripe is wider than its fitted sd says), at most 12 px
+    j = np.arange(1, 13)
+    below = [pol.high[i, np.clip(k[:, None] + sgn * j[None], 0, K - 1)]
+             < 0.1 * np.maximum(height, 0.0)[:, None] for sgn in (-1, 1)]
+    tail = np.maximum(*[np.where(b.any(1), np.argmax(b, axis=1) + 2, 13) for b in below])
+    start = np.clip(np.maximum(np.ceil(3 * np.nan_to_num(width, nan=1.0)), tail), 3, 12)
     side = np.arange(5)[None, :] + start[:, None]
     cand = np.clip(k[:, None] + np.concatenate([-side, side], axis=1), 0, K - 1).astype(int)
-    i = np.arange(n)[:, None]
     rr = pol.radii[cand]
     H, W = var_img.shape
     u = np.clip(np.rint(pol.center[0] + np.cos(pol.phi)[:, None] * rr).astype(int), 0, W - 1)
     v = np.clip(np.rint(pol.center[1] + np.sin(pol.phi)[:, None] * rr).astype(int), 0, H - 1)
-    excess = np.maximum(np.mean(pol.high[i, cand] ** 2, axis=1) - var_img[v, u].mean(1), 0.0)
+    # a robust mean square (the median over 0.455, a chi-square's with 1 degree of freedom):
+    # a narrow ridge beside the stripe (a ghost, a lamp's edge) does not move its peak
+    ms = np.median(pol.high[i, cand] ** 2, axis=1) / 0.455
+    excess = np.maximum(ms - var_img[v, u].mean(1), 0.0)
     w = np.nan_to_num(np.maximum(width, 0.5), nan=0.5)
     return np.nan_to_num(excess * (CLUTTER_K * w / np.maximum(height, 1e-3)) ** 2, nan=0.0)
 

@@ -79,7 +79,7 @@ def ours_faint():
 
 
 def test_ours_textured_walls_and_lamps_without_laser_off_image(ours_textured):
-    # measured: kept 0.93, robust sd 0.15, bias 0.01, gross 0, z rms 0.83
+    # measured: kept 0.93, robust sd 0.15, bias 0.01, gross 0, z rms 0.82
     img, truth = ours_textured
     e, sd, kept = ours_errors(bc.extract_laser(img), truth)
     assert_targets(targets(e, sd, kept, max_rsd=0.25))
@@ -89,8 +89,8 @@ def test_ours_textured_walls_without_laser_off_image():
     # three images of textured walls (no lamps), no laser-off image; the five targets on the
     # pooled points, z with the sd along the ring's normal that the extractor states
     # (``sd_normal``, as studies/extraction_rooms.py scores it). Measured: kept 0.87-0.95
-    # (mean 0.92), robust sd 0.14-0.20 px, |bias| <= 0.014 px, gross 0-1.0 %, z rms 1.06-1.32
-    # (pooled 1.17). Without the clutter variance (texture under the stripe) and the gates on
+    # (mean 0.92), robust sd 0.14-0.20 px, |bias| <= 0.014 px, gross 0-1.0 %, z rms 0.99-1.24
+    # (pooled 1.10). Without the clutter variance (texture under the stripe) and the gates on
     # the neighbourhood's sd, the same images gave z rms 1.43-2.05 (pooled 1.68), gross up
     # to 1.8 %.
     es, sds, kepts = [], [], []
@@ -181,12 +181,13 @@ def test_r2_textured_walls_with_laser_off_image(r2_textured):
 
 
 def test_r2_textured_walls_without_laser_off_image(r2_textured):
-    # measured: kept 0.93, robust sd 0.17, bias -0.03; gross 2.1 % and z rms 2.0 miss their
-    # targets (a rail and poster edges under the stripe; docs/images.md): asserted apart
+    # measured: kept 0.95, robust sd 0.19, bias -0.05, z rms 1.07 (1.31 before the clutter
+    # variance); gross 3.2 % misses its target (a rail and poster edges crossing the stripe;
+    # docs/images.md): asserted apart
     img, _, truth = r2_textured
     res = targets(*r2_errors(bc.extract_laser(img), truth), max_rsd=0.25)
-    assert res["kept"] and res["robust sd"] and res["bias"]
-    assert not (res["gross"] and res["z rms"]), "the shortfall is gone: update the docs"
+    assert res["kept"] and res["robust sd"] and res["bias"] and res["z rms"]
+    assert not res["gross"], "the shortfall is gone: update the docs"
 
 
 def test_r2_faint_far_ring_with_laser_off_image():
