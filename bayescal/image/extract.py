@@ -314,17 +314,14 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
     h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
     w_s = median_filter(width, size=win, mode="wrap")
-    # the gates use the typical sd of the neighbourhood: a misfit that inflates a point's
-    # own variance must not also excuse it from being off the ring (nor, 3 gate_px off it,
-    # a neighbourhood of such points)
-    sd_loc = np.sqrt(median_filter(var_r, size=win, mode="wrap"))
+    # the gates use the smaller of a point's sd and the typical sd of its neighbourhood: a
+    # misfit that inflates a point's own variance must not also excuse it from being off
+    # the ring (nor, 3 gate_px off it, a neighbourhood of such points)
+    sd_loc = np.sqrt(np.minimum(var_r, median_filter(var_r, size=win, mode="wrap")))
     gates = {"off ring": np.abs(r - r_s) > np.clip(4 * sd_loc, gate_px, 3 * gate_px),
              "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * sd_loc),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
-             "misfit": chi2 > 30 * scale, "wide": width > 3 * w_s,
-             # brighter than its neighbours and off the ring (the laser on a bright patch
-             # of wall is brighter too, but on the ring)
-             "glint": (height > 4 * h_s) & (np.abs(r - r_s) > 0.5 * gate_px),
+             "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
