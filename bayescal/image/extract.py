@@ -110,6 +110,12 @@ def _saturation(image, gray):
     return float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(gray.max())
 
 
+#: the path's cost for straying from the ring's circle: free within max(PRIOR_TOL[0] px,
+#: PRIOR_TOL[1] x the ridge's sd about the circle), then PRIOR_SLOPE sds per px
+PRIOR_TOL = (3.0, 4.0)
+PRIOR_SLOPE = 1.0
+
+
 def _start(sig, raw, sat, center, radius, highpass_px):
     """Centre of the first profiles, the search's outer radius and the mirror's disc."""
     mirror = mirror_disc(raw)
@@ -156,9 +162,10 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
     on_blob = _score_without_blobs(pol, blobs)
     if prior is not None:
-        # the ring is nearly a circle about ``c``: a cost for straying far from it
-        far = np.maximum(np.abs(pol.radii - prior) - max(5.0, 0.08 * prior), 0.0)
-        pol.score = pol.score - far[None, :]
+        # the ring is nearly a circle about ``c`` (radius, tolerance px): a cost for
+        # straying farther from it, PRIOR_SLOPE noise sds per azimuth per px
+        far = np.maximum(np.abs(pol.radii - prior[0]) - prior[1], 0.0)
+        pol.score = pol.score - PRIOR_SLOPE * far[None, :]
     path, closure, gain = ring_path(pol.score)
     gains = (gain, np.nan)
     if runner_up:
@@ -289,8 +296,9 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
     if prior is not None and np.hypot(*(prior[0] - c)) < 0.5 * prior[1]:
         c = c if center is not None else prior[0]
         R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
+        tol = max(PRIOR_TOL[0], PRIOR_TOL[1] * prior[2])
     else:
-        prior, R = None, 100.0
+        prior, R, tol = None, 100.0, 8.0
     n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
     band = band0
     if prior is not None:
@@ -298,7 +306,8 @@ def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_
         band = band if band0 is None else (max(band[0], band0[0]), min(band[1], band0[1]))
     r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
     pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
-                                          r_band=band, prior=None if center is not None else R)
+                                          r_band=band,
+                                          prior=None if center is not None else (R, tol))
     return pol, k, on_blob, closure, gains, mirror
 
 
@@ -327,17 +336,61 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
     h_s = median_filter(np.maximum(height, 0), size=win, mode="wrap")
     w_s = median_filter(width, size=win, mode="wrap")
-    gates = {"off ring": np.abs(r - r_s) > np.maximum(gate_px, 4 * np.sqrt(var_r)),
-             "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * np.sqrt(var_r)),
+    # the gates use the smaller of a point's sd and the typical sd of its neighbourhood: a
+    # misfit that inflates a point's own variance must not also excuse it from being off
+    # the ring (nor, 3 gate_px off it, a neighbourhood of such points)
+    sd_loc = np.sqrt(np.minimum(var_r, median_filter(var_r, size=win, mode="wrap")))
+    gates = {"off ring": np.abs(r - r_s) > np.clip(4 * sd_loc, gate_px, 3 * gate_px),
+             "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * sd_loc),
              "faint": snr < min_snr, "no peak": ~np.isfinite(r),
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
+    var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
     cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
     return lp, gates
+
+
+#: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a
+#: laser-off image on both renderers' textured rooms (0.8 and 1.0 move it by about +-0.05)
+CLUTTER_K = 0.9
+
+
+def _clutter_variance(pol, k, var_img, width, height):
+    """Radial variance (px^2) from wall texture under the stripe, per profile.
+
+    Texture at the beam's scale that the running median leaves in the high-passed profile
+    moves the peak by about its slope times ``width^2 / height``, an error shared by
+    neighbouring profiles that no scatter about the smoothed ring can reveal. Its size comes
+    from five high-passed samples either side of the peak, past the stripe's tails: their
+    robust mean square beyond the pixel noise's variance (zero where only noise is left, as
+    with a laser-off image), times ``(CLUTTER_K width / height)^2``.
+    """
+    n, K = pol.high.shape
+    i = np.arange(n)[:, None]
+    # five samples each side, past the stripe's own tails: from 3 of its sds (at least 3
+    # px) or 1 px past where the profile first drops below a tenth of the peak (a
+    # saturated, flat-topped stripe is wider than its fitted sd says), at most 12 px
+    j = np.arange(1, 13)
+    below = [pol.high[i, np.clip(k[:, None] + sgn * j[None], 0, K - 1)]
+             < 0.1 * np.maximum(height, 0.0)[:, None] for sgn in (-1, 1)]
+    tail = np.maximum(*[np.where(b.any(1), np.argmax(b, axis=1) + 2, 13) for b in below])
+    start = np.clip(np.maximum(np.ceil(3 * np.nan_to_num(width, nan=1.0)), tail), 3, 12)
+    side = np.arange(5)[None, :] + start[:, None]
+    cand = np.clip(k[:, None] + np.concatenate([-side, side], axis=1), 0, K - 1).astype(int)
+    rr = pol.radii[cand]
+    H, W = var_img.shape
+    u = np.clip(np.rint(pol.center[0] + np.cos(pol.phi)[:, None] * rr).astype(int), 0, W - 1)
+    v = np.clip(np.rint(pol.center[1] + np.sin(pol.phi)[:, None] * rr).astype(int), 0, H - 1)
+    # a robust mean square (the median over 0.455, a chi-square's with 1 degree of freedom):
+    # a narrow ridge beside the stripe (a ghost, a lamp's edge) does not move its peak
+    ms = np.median(pol.high[i, cand] ** 2, axis=1) / 0.455
+    excess = np.maximum(ms - var_img[v, u].mean(1), 0.0)
+    w = np.nan_to_num(np.maximum(width, 0.5), nan=0.5)
+    return np.nan_to_num(excess * (CLUTTER_K * w / np.maximum(height, 1e-3)) ** 2, nan=0.0)
 
 
 def _scatter_factor(d, var, win):

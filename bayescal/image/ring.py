@@ -205,12 +205,13 @@ def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
 
 def ring_prior(pol, *, z_min=4.0, cap=8.0):
     """Where the ring is, before any path: a circle through the strong ridge samples near
-    the radius that most azimuths share (centre (2,), radius px), or None.
+    the radius that most azimuths share: its centre (2,), radius px and the robust sd of
+    those samples about it (px, how far the ring strays from a circle), or None.
 
     A laser ring is nearly a circle (its elevation changes little with the wall's distance,
-    as the laser sits close to the mirror), while rails and texture edges on the walls
-    undulate more; a circle found this way keeps the path from following one of those
-    for a sector where it outshines the laser.
+    as the laser sits close to the mirror), while texture edges on the walls undulate
+    more; a circle found this way keeps the path from following one of those for a sector
+    where it outshines the laser.
     """
     sc = pol.score
     peak = (sc > z_min) & (sc >= np.roll(sc, 1, axis=1)) & (sc >= np.roll(sc, -1, axis=1))
@@ -229,5 +230,8 @@ def ring_prior(pol, *, z_min=4.0, cap=8.0):
         c, R, _ = circle_fit(pts[near], w[near])
         if not np.isfinite(R):
             return None
-        near = np.abs(np.hypot(*(pts - c).T) - R) <= max(5.0, 0.06 * R)
-    return c, R
+        res = np.hypot(*(pts - c).T) - R
+        near = np.abs(res) <= max(5.0, 0.06 * R)
+    if np.count_nonzero(near) < 12:
+        return None
+    return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))

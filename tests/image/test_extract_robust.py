@@ -79,10 +79,30 @@ def ours_faint():
 
 
 def test_ours_textured_walls_and_lamps_without_laser_off_image(ours_textured):
-    # measured: kept 0.92, robust sd 0.16, bias 0.01, gross 0, z rms 1.25
+    # measured: kept 0.92, robust sd 0.15, bias 0.01, gross 0, z rms 0.82
     img, truth = ours_textured
     e, sd, kept = ours_errors(bc.extract_laser(img), truth)
     assert_targets(targets(e, sd, kept, max_rsd=0.25))
+
+
+def test_ours_textured_walls_without_laser_off_image():
+    # three images of textured walls (no lamps), no laser-off image; the five targets on the
+    # pooled points, z with the sd along the ring's normal that the extractor states
+    # (``sd_normal``, as studies/extraction_rooms.py scores it). Measured: kept 0.84-0.95
+    # (mean 0.907, just over the target), robust sd 0.14-0.19 px, |bias| <= 0.011 px, gross
+    # 0-0.7 %, z rms 0.99-1.20 (pooled 1.09). Without the clutter variance (texture under
+    # the stripe) and the gates on the neighbourhood's sd, the same images gave z rms
+    # 1.43-2.05 (pooled 1.68), gross up to 1.8 %.
+    es, sds, kepts = [], [], []
+    for seed in (100, 101, 102):
+        img, truth = bc.render_image(P, bc.room_walls(2500), n_lamps=0, rng=seed)
+        lp = bc.extract_laser(img)
+        e, _, kept = ours_errors(lp, truth)
+        es.append(e)
+        sds.append(lp.sd_normal[~lp.flagged])
+        kepts.append(kept)
+    assert_targets(targets(np.concatenate(es), np.concatenate(sds), float(np.mean(kepts)),
+                           max_rsd=0.25))
 
 
 def test_ours_faint_ring_with_laser_off_image(ours_faint):
@@ -161,12 +181,13 @@ def test_r2_textured_walls_with_laser_off_image(r2_textured):
 
 
 def test_r2_textured_walls_without_laser_off_image(r2_textured):
-    # measured: kept 0.93, robust sd 0.17, bias -0.03; gross 2.1 % and z rms 2.0 miss their
-    # targets (a rail and poster edges under the stripe; docs/images.md): asserted apart
+    # measured: kept 0.95, robust sd 0.19, bias -0.05, z rms 1.07 (1.31 before the clutter
+    # variance); gross 2.9 % misses its target (a rail and poster edges crossing the stripe;
+    # docs/images.md): asserted apart
     img, _, truth = r2_textured
     res = targets(*r2_errors(bc.extract_laser(img), truth), max_rsd=0.25)
-    assert res["kept"] and res["robust sd"] and res["bias"]
-    assert not (res["gross"] and res["z rms"]), "the shortfall is gone: update the docs"
+    assert res["kept"] and res["robust sd"] and res["bias"] and res["z rms"]
+    assert not res["gross"], "the shortfall is gone: update the docs"
 
 
 def test_r2_faint_far_ring_with_laser_off_image():
@@ -205,3 +226,11 @@ def test_r2_no_ring_with_laser_off_image_is_an_error():
     img, bg, _ = render2(P, range_mm=2500, laser=False, rng=3)
     with pytest.raises(bc.ExtractionError, match="no laser ring|no ring stands out"):
         bc.extract_laser(img, background=bg)
+
+
+@pytest.mark.xfail(strict=True, reason="without a laser-off image a bright rail around the "
+                   "walls is a thin closed ridge like a laser ring (docs/images.md)")
+def test_r2_no_ring_without_laser_off_image_is_an_error():
+    img, _, _ = render2(P, range_mm=2500, laser=False, rng=3)
+    with pytest.raises(bc.ExtractionError):
+        bc.extract_laser(img)
