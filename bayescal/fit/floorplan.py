@@ -41,6 +41,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES
+from .plan_robust import PlanRetry
 from .schur import _prior_rows, damped_step, safe_inv
 
 __all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
@@ -220,9 +221,7 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
         best = sol if sol.objective < best.objective else best
     best = _corner_restarts(lik, prior, best, max_iter)
     _restore(lik, best)
-    from .plan_robust import robust_retry   # imports this module
-
-    return lik, prior, robust_retry(lik, prior, best, max_iter)
+    return lik, prior, RETRY.retry(lik, prior, best, max_iter)
 
 
 def _fit_from(lik, prior, init, max_iter, *, staged=True):
@@ -463,3 +462,8 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+#: the robust retry of :func:`_fit` (:mod:`bayescal.fit.plan_robust`), on this module's steps
+RETRY = PlanRetry(solve=_solve, finish=_finish, e_step=_e_step, restore=_restore,
+                  normal_equations=_normal_equations, sensor=_sensor)

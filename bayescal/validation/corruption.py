@@ -362,9 +362,10 @@ def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, se
     ds : Dataset
     kind : str
         One of :data:`KINDS` or :data:`PLAN_KINDS`.
-    method : {"lsq", "posterior", "plan"}
+    method : {"lsq", "posterior", "plan", "plan_posterior"}
         :func:`~bayescal.calibrate_simultaneous` on the approximate points, or
-        :func:`~bayescal.sample_posterior` on them, or the least squares on ``plan``.
+        :func:`~bayescal.sample_posterior` on them, or the least squares or the posterior
+        on ``plan``.
     noise : {"given", "inferred"}
         The pixel (and scene) noise given as simulated, or inferred.
     plan : FloorPlan, optional
@@ -386,12 +387,14 @@ def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, se
 
     plan = ds.floor_plan if plan is None else plan
     spx = ds.sigma_px if noise == "given" else None
-    if method == "posterior":
+    if method in ("posterior", "plan_posterior"):
         fit_kw.setdefault("rng", seed)
 
     def fit(pixels, approx, the_plan, scene):
         if method == "plan":
             return calibrate_simultaneous(pixels, the_plan, sigma_px=spx, **fit_kw)
+        if method == "plan_posterior":
+            return sample_posterior(pixels, the_plan, sigma_px=spx, **fit_kw)
         f = sample_posterior if method == "posterior" else calibrate_simultaneous
         return f(pixels, approx, sigma_px=spx, sigma_scene=scene, **fit_kw)
 

@@ -8,7 +8,6 @@ import pytest
 
 import bayescal as bc
 from bayescal.fit import floorplan as fp
-from bayescal.fit import plan_robust
 from bayescal.validation.corruption import corrupt, judge
 
 
@@ -28,11 +27,11 @@ def test_the_detector_passes_a_clean_fit_and_names_a_noise_gross_pixels_set(room
     5-30 px off fitted without the mixture: the inferred sigma_px is several times its
     estimate from the best 80 % of the points, and the residuals' robust scale says so."""
     lik, prior, sol = _fit(room.pixels, room.floor_plan)
-    assert plan_robust.plan_problems(lik, prior, sol) == []
+    assert fp.RETRY.problems(lik, prior, sol) == []
     assert not sol.robust
     c = corrupt(room, "random_gross", rng=5)
     lik, prior, sol = _fit(c.pixels, room.floor_plan, outliers=False)
-    problems = plan_robust.plan_problems(lik, prior, sol)
+    problems = fp.RETRY.problems(lik, prior, sol)
     assert any("best-fitting 80%" in p for p in problems), problems
     assert any("robust scale" in p for p in problems), problems
     assert sol.sigma_px > 2 * 0.2
@@ -46,13 +45,13 @@ def test_an_untrusted_plan_fit_is_retried_from_the_robust_start(room, model, mon
     <= 1 % of the good ones flagged, the good points' error <= 1.25x the clean fit's."""
     clean = bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=None, model=model)
     err = float(np.mean(np.linalg.norm(clean.points - room.points, axis=1)))
-    real, calls = plan_robust.plan_problems, []
+    real, calls = fp.RETRY.problems, []
 
     def first_untrusted(lik, prior, sol):
         calls.append(sol)
         return ["forced"] if len(calls) == 1 else real(lik, prior, sol)
 
-    monkeypatch.setattr(plan_robust, "plan_problems", first_untrusted)
+    monkeypatch.setattr(fp.RETRY, "problems", first_untrusted)
     c = corrupt(room, "pixels_5pct", rng=11)
     assert len(c.rows) == 10
     res = bc.calibrate_simultaneous(c.pixels, room.floor_plan, sigma_px=None, model=model)
