@@ -95,9 +95,9 @@ def robust_solution(ops, lik, prior, best, max_iter):
 
 
 def robust_retry(ops, lik, prior, best, max_iter):
-    """``best``, or the robust start's solution when ``best`` cannot be trusted and the
-    robust one can (or neither can and the robust one passes the plan's checks where
-    ``best`` did not). Leaves ``lik`` in the chosen solution's state."""
+    """``best``, or the robust start's solution when ``best`` cannot be trusted, the
+    robust one can, and it passes the plan's checks (wall chi-square, flagged walls)
+    wherever ``best`` did. Leaves ``lik`` in the chosen solution's state."""
     best.robust = False
     if not lik.outliers or not ops.problems(lik, prior, best):
         return best
