@@ -194,8 +194,7 @@ def _bayes(job):
     data, kw = job.data, {}
     if job.max_steps is not None:         # asked for a longer run: no time budget
         kw["max_steps"] = job.max_steps
-        if job.plan is None:
-            kw["budget"] = None
+        kw["budget"] = None
     if job.nominal != SensorParams.paper():
         kw["init"] = job.nominal
     if not job.outliers:

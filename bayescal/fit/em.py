@@ -16,7 +16,7 @@ from ..checks.fit import robust_noise_ratio
 from ..likelihood.outliers import NOISE_TRIM, annealed_outlier_prob, em_update
 from .schur import solve_map
 
-__all__ = ["ROBUST_STEPS", "ROBUST_KEEP"]
+__all__ = ["ROBUST_STEPS", "ROBUST_KEEP", "TRIMMED_NOISE_LIMIT"]
 
 
 class _MapFit:
@@ -98,6 +98,10 @@ def _fit_map(lik, prior, theta0, q0, max_iter, max_rounds=30, r_tol=1e-3, robust
 
 #: concentration steps of the high-breakdown start, and the fraction of points each keeps
 ROBUST_STEPS, ROBUST_KEEP = 4, 0.8
+#: an inferred level more than this many times its estimate from the best-fitting
+#: ``1 - NOISE_TRIM`` of the points is set by a few rows (clean rooms: 1.10-1.43); it sends
+#: the fit to the robust start
+TRIMMED_NOISE_LIMIT = 1.75
 
 
 def _robust_start(lik, prior, fit, theta, q, max_iter):

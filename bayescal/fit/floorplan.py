@@ -41,6 +41,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES
+from .plan_robust import PlanRetry
 from .schur import _prior_rows, damped_step, safe_inv
 
 __all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
@@ -220,7 +221,7 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
         best = sol if sol.objective < best.objective else best
     best = _corner_restarts(lik, prior, best, max_iter)
     _restore(lik, best)
-    return lik, prior, best
+    return lik, prior, RETRY.retry(lik, prior, best, max_iter)
 
 
 def _fit_from(lik, prior, init, max_iter, *, staged=True):
@@ -250,7 +251,7 @@ def _fit_from(lik, prior, init, max_iter, *, staged=True):
     return _finish(lik, prior, g, t, sig, max_iter)
 
 
-def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
+def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3, inliers=None):
     """Joint solve from (g, t) (re-estimating an inferred noise, EM for the outliers),
     re-picked corners, checks and the collapsed objective; returns the solution.
 
@@ -272,8 +273,7 @@ def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
             # freedom per point: two pixel rows, one azimuth); maximum at mean S_i (EM:
             # the weighted S_i, each component's -log sigma summing to one per point)
             # first round trimmed: a streak of bad rows cannot inflate it (robustness.md)
-            sig = float(sig * np.sqrt(trimmed_mean_square(np.sum(sol.ne["R0"] ** 2, axis=1), 1)
-                                      if k == 0 else np.sum(sol.ne["R"] ** 2) / lik.n))
+            sig = float(sig * np.sqrt(_noise_factor(lik, sol, k, inliers)))
         if lik.outliers and _e_step(lik, g, sig) < r_tol and k > 0 \
                 and abs(np.log(sig / old)) < 1e-4:
             break
@@ -288,6 +288,15 @@ def _finish(lik, prior, g, t, sig, max_iter, *, max_rounds=30, r_tol=1e-3):
     sol.objective = sol.cost + (lik.n * np.log(sol.sigma_px) if lik.infer_px else 0.0)
     sol.assignment = (lik.corner.copy(), lik.wall_pair.copy(), lik.ref_sigma_px)
     return sol
+
+
+def _noise_factor(lik, sol, k, inliers):
+    """The inferred pixel noise's update factor (squared) after round ``k`` of :func:`_finish`."""
+    if inliers is not None and np.count_nonzero(inliers) >= 0.5 * lik.n:
+        return float(np.sum(sol.ne["R"][inliers] ** 2) / np.count_nonzero(inliers))
+    if k == 0:
+        return trimmed_mean_square(np.sum(sol.ne["R0"] ** 2, axis=1), 1)
+    return float(np.sum(sol.ne["R"] ** 2) / lik.n)
 
 
 def _em_state(lik):
@@ -445,6 +454,7 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
     result = make_result(lik, sol, absolute_sigma, False, prior=prior)
+    result.extras["robust_start"] = bool(getattr(sol, "robust", False))
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
                        noise_inferred=lik.infer_px)
@@ -452,3 +462,8 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+#: the robust retry of :func:`_fit` (:mod:`bayescal.fit.plan_robust`), on this module's steps
+RETRY = PlanRetry(solve=_solve, finish=_finish, e_step=_e_step, restore=_restore,
+                  normal_equations=_normal_equations, sensor=_sensor)

@@ -43,6 +43,7 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
     res = make_result(lik, sol, absolute_sigma, raise_on_failure, prior=prior)
+    res.extras["robust_start"] = bool(getattr(sol, "robust", False))
     res.extras["likelihood"] = lik
     # typical horizontal range of the laser points: where a finite-range ring radius would
     # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)

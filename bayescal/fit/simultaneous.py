@@ -43,7 +43,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES, LaserPose
-from .em import _fit_map, _fit_noise
+from .em import TRIMMED_NOISE_LIMIT, _fit_map, _fit_noise
 from .fixed_points import calibrate_fixed_points
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
@@ -263,11 +263,6 @@ def _checked(lik, prior, fit, absolute_sigma):
     if result.converged and lik.n_noise and lik.outliers and not fit.robust:
         _check_trimmed_noise(lik, fit, result)
     return result, None if result.converged else "not converged"
-
-
-#: an inferred level more than this many times its estimate from the best-fitting
-#: ``1 - NOISE_TRIM`` of the points is set by a few rows (clean rooms: 1.10-1.43)
-TRIMMED_NOISE_LIMIT = 1.75
 
 
 def _check_trimmed_noise(lik, fit, result):

@@ -31,6 +31,7 @@ from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
 from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged, sample_collapsed
+from .steps import BUDGET_FACTOR
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
 
@@ -45,7 +46,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                           n_point_mh=2, n_iter=1, n_tune=None, sigma_scene=SCENE_REQUIRED,
                           outliers=True, outlier_scale=OUTLIER_SCALE,
                           outlier_prior=OUTLIER_PRIOR, pixel_cov=None, model="aligned",
-                          camera=None):
+                          camera=None, budget=BUDGET_FACTOR):
     """Sample the posterior of the sensor, the walls of a rough plan and every laser point.
 
     Parameters
@@ -76,6 +77,9 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
     model : {"aligned", "misaligned"}
         The laser cone; ``"misaligned"`` samples its tilt and offset too (the pose's four
         numbers after theta in psi; ``post.laser_samples`` (S, 4)).
+    budget : float or None
+        Time budget, as in :func:`bayescal.sample_posterior` (default 3: the chain stops,
+        not converged and saying why, after 3 times the steps its stopping rule projected).
 
     Returns
     -------
@@ -112,7 +116,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter,
-                           n_tune=n_tune)
+                           n_tune=n_tune, budget=budget)
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
     post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",

@@ -105,7 +105,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         rule projected after 200 steps (default 3; a clean chain meets the rule near
         that projection, one whose autocorrelation time keeps growing does not: rows
         switching between inlier and outlier, several modes). ``None``: run to
-        ``max_steps``.
+        ``max_steps``. The same with a :class:`~bayescal.FloorPlan`.
     n_samples : int, optional
         Number of joint samples (parameters and points) kept, thinned evenly
         from the converged chain.
@@ -180,7 +180,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                          f"steps), got {budget!r}")
     if isinstance(approx_points, FloorPlan):          # walls in place of points
         kw = {k: v for k, v in locals().items()
-              if k not in ("pixels", "approx_points", "camera", "budget", "offset_sd")}
+              if k not in ("pixels", "approx_points", "camera", "offset_sd")}
         return _with_offset(sample_plan_posterior(pixels, approx_points, **kw), offset_sd, rng)
     if sigma_scene is SCENE_REQUIRED:
         raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "

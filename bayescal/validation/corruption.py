@@ -32,7 +32,8 @@ from ..fit.simultaneous import calibrate_simultaneous
 from ..mcmc.sampling import sample_posterior
 from ..scene.floorplan import FloorPlan
 
-__all__ = ["KINDS", "PIXEL_KINDS", "POINT_KINDS", "MIXED_KINDS", "PLAN_KINDS", "Corruption",
+__all__ = ["KINDS", "PIXEL_KINDS", "POINT_KINDS", "MIXED_KINDS", "PLAN_KINDS",
+           "PLAN_MIXED_KINDS", "Corruption",
            "corrupt", "judge", "run_case", "ERROR_RATIO",
            "MIN_FLAGGED", "MAX_FALSE_FLAGGED", "MAX_REFUSABLE"]
 
@@ -46,6 +47,9 @@ POINT_KINDS = ("metres", "centimetres", "sign_flip", "z_sign_flip", "times_ten",
 MIXED_KINDS = ("mixed", "mixed_5pct")
 #: corruptions of laser data (pixels or approximate points)
 KINDS = PIXEL_KINDS + POINT_KINDS + ("duplicated_block",) + MIXED_KINDS
+#: 5 % of a floor-plan file's rows (pixels only) corrupted: a reflection streak, a ghost
+#: arc and spurious pixels, a third of the budget each
+PLAN_MIXED_KINDS = ("pixels_5pct",)
 #: corruptions of a floor plan
 PLAN_KINDS = ("wall_off",)
 #: the invariant (module docstring)
@@ -86,7 +90,7 @@ def _radial(pixels, center):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _pixel_kinds(kind, ds, pix, rng, count, exclude=()):
+def _pixel_kinds(kind, ds, pix, rng, count, exclude=(), run=15):
     c = np.array([ds.params.u0, ds.params.v0])
     free = np.setdiff1d(np.arange(len(pix)), exclude)
     if kind == "gross_pixel":                 # a spurious detection 25 px away
@@ -96,7 +100,7 @@ def _pixel_kinds(kind, ds, pix, rng, count, exclude=()):
     elif kind in ("streak", "ghost_ring"):    # consecutive in azimuth
         az = np.argsort(np.arctan2(pix[:, 1] - c[1], pix[:, 0] - c[0]))
         start = int(rng.integers(len(pix)))
-        rows = np.sort(az[(start + np.arange(max(count, 1) * 15)) % len(pix)])
+        rows = np.sort(az[(start + np.arange(max(count, 1) * run)) % len(pix)])
         if kind == "streak":                  # a reflection: 3 px outward
             pix[rows] += 3.0 * _radial(pix[rows], c)
         else:                                 # a ghost ring: 6 % of the radius inward
@@ -181,6 +185,28 @@ def _mixed(kind, ds, pix, apx, rng):
     return rows
 
 
+def _pixel_mix(ds, pix, rng):
+    """5 % of the rows: a streak and a ghost arc of a third each, the rest spurious pixels
+    5-30 px away (on distinct rows)."""
+    n_bad = max(3, int(0.05 * len(pix)))
+    run = n_bad // 3
+    rows = np.array([], int)
+    for kind in ("streak", "ghost_ring"):
+        for _ in range(20):                 # an arc that misses the rows already used
+            trial = pix.copy()
+            new = _pixel_kinds(kind, ds, trial, rng, 1, run=run)
+            if not np.intersect1d(new, rows).size:
+                break
+        pix[:] = trial
+        rows = np.union1d(rows, new)
+    free = np.setdiff1d(np.arange(len(pix)), rows)
+    gross = np.sort(rng.choice(free, size=n_bad - len(rows), replace=False))
+    ang = rng.uniform(0, 2 * np.pi, len(gross))
+    pix[gross] += rng.uniform(5, 30, len(gross))[:, None] * np.stack(
+        [np.cos(ang), np.sin(ang)], -1)
+    return np.union1d(rows, gross)
+
+
 def _shift_wall(walls, k, factor):
     """Walls (W, 2, 2) of a closed polygon with wall ``k`` moved to ``factor`` times its
     distance from the axis; its two corners follow (intersections with the neighbours)."""
@@ -208,12 +234,13 @@ def corrupt(ds, kind, *, count=1, rng=None):
     ds : Dataset
         From :func:`~bayescal.simulate_room`.
     kind : str
-        One of :data:`KINDS` or :data:`PLAN_KINDS`.
+        One of :data:`KINDS`, :data:`PLAN_MIXED_KINDS` or :data:`PLAN_KINDS`.
     count : int, optional
         How many (rows, streaks or ghost-ring arcs of 15 pixels, swapped pairs, blocks of
         10 rows mis-paired or duplicated); ``random_gross`` always corrupts 5 % of the
         pixels, ``mixed`` five rows (a typo, a swapped pair, a spurious pixel, a z sign
-        flip) and ``mixed_5pct`` 5 % of the rows, kinds drawn at random.
+        flip) and ``mixed_5pct`` 5 % of the rows, kinds drawn at random; ``pixels_5pct``
+        5 % of the rows' pixels (a streak, a ghost arc, spurious pixels).
     rng : numpy.random.Generator, int or None
 
     Returns
@@ -233,6 +260,8 @@ def corrupt(ds, kind, *, count=1, rng=None):
         rows = _point_kinds(kind, ds, apx, rng, count)
     elif kind in MIXED_KINDS:
         rows = _mixed(kind, ds, pix, apx, rng)
+    elif kind in PLAN_MIXED_KINDS:
+        rows = _pixel_mix(ds, pix, rng)
     elif kind == "duplicated_block":
         start = int(rng.integers(len(pix) - 10 * count))
         block = np.arange(start, start + 10 * count)
@@ -246,7 +275,8 @@ def corrupt(ds, kind, *, count=1, rng=None):
         bad = FloorPlan(walls, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
         return Corruption(kind, pix, apx, np.array([], int), bad)
     else:
-        raise ValueError(f"kind must be one of {KINDS + PLAN_KINDS}, got {kind!r}")
+        raise ValueError(f"kind must be one of {KINDS + PLAN_MIXED_KINDS + PLAN_KINDS}, "
+                         f"got {kind!r}")
     return Corruption(kind, pix, apx, np.asarray(rows, int))
 
 
@@ -332,9 +362,10 @@ def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, se
     ds : Dataset
     kind : str
         One of :data:`KINDS` or :data:`PLAN_KINDS`.
-    method : {"lsq", "posterior", "plan"}
+    method : {"lsq", "posterior", "plan", "plan_posterior"}
         :func:`~bayescal.calibrate_simultaneous` on the approximate points, or
-        :func:`~bayescal.sample_posterior` on them, or the least squares on ``plan``.
+        :func:`~bayescal.sample_posterior` on them, or the least squares or the posterior
+        on ``plan``.
     noise : {"given", "inferred"}
         The pixel (and scene) noise given as simulated, or inferred.
     plan : FloorPlan, optional
@@ -350,16 +381,20 @@ def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, se
     Returns
     -------
     dict
+        :func:`judge`'s, and ``robust_start`` (whether the result came from the robust
+        start; None without a result).
     """
 
     plan = ds.floor_plan if plan is None else plan
     spx = ds.sigma_px if noise == "given" else None
-    if method == "posterior":
+    if method in ("posterior", "plan_posterior"):
         fit_kw.setdefault("rng", seed)
 
     def fit(pixels, approx, the_plan, scene):
         if method == "plan":
             return calibrate_simultaneous(pixels, the_plan, sigma_px=spx, **fit_kw)
+        if method == "plan_posterior":
+            return sample_posterior(pixels, the_plan, sigma_px=spx, **fit_kw)
         f = sample_posterior if method == "posterior" else calibrate_simultaneous
         return f(pixels, approx, sigma_px=spx, sigma_scene=scene, **fit_kw)
 
@@ -380,4 +415,5 @@ def run_case(ds, kind, *, method="lsq", noise="inferred", plan=None, count=1, se
     if any(issubclass(w.category, DuplicateRowsWarning) for w in caught):
         warned = c.rows
     verdict = judge(out, c, ds.points, clean, warned_rows=warned)
-    return {"kind": kind, "method": method, "noise": noise, **verdict}
+    robust = getattr(out, "extras", {}).get("robust_start")
+    return {"kind": kind, "method": method, "noise": noise, "robust_start": robust, **verdict}

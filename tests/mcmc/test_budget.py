@@ -46,3 +46,35 @@ def test_a_chain_whose_tau_keeps_growing_stops_on_its_budget_and_says_why():
     assert "time budget" in info["stopped"] and "autocorrelation time grew" in info["stopped"]
     first = int(info["stopped"].split("times the ")[1].split()[0])
     assert steps == info["n_steps"] <= BUDGET_FACTOR * first + 1
+
+
+def test_a_floor_plan_posterior_runs_under_the_same_budget(monkeypatch):
+    """sample_posterior hands its budget to the floor-plan sampler too (it used to drop it
+    there): the chain runner sees the default BUDGET_FACTOR, or None when asked, and a
+    chain the budget stops is reported not converged with the reason."""
+    import warnings
+
+    import bayescal as bc
+    from bayescal.mcmc import collapsed
+
+    ds = bc.simulate_room(range_mm=1000.0, n_points=40, n_walls=4, sigma_px=0.5,
+                          approx_error=0.02, approx_model="gaussian", rng=0)
+    seen, real = [], collapsed.run_until_converged
+
+    def spy(*args, **kw):
+        seen.append(kw["budget"])
+        info = real(*args, **{**kw, "max_steps": 100})      # a short chain is enough here
+        if kw["budget"] is not None:          # as if the budget had stopped it
+            info.update(converged=False, stopped="stopped by its time budget (test)")
+        return info
+
+    monkeypatch.setattr(collapsed, "run_until_converged", spy)
+    kw = dict(sigma_px=0.5, rng=1, progress=False, min_ess=50, tau_factor=10, n_samples=50,
+              outliers=False, n_tune=20)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        post = bc.sample_posterior(ds.pixels, ds.floor_plan, **kw)
+    assert seen == [BUDGET_FACTOR] and not post.converged
+    assert any("time budget" in str(w.message) for w in caught)
+    bc.sample_posterior(ds.pixels, ds.floor_plan, budget=None, **kw)
+    assert seen[-1] is None
