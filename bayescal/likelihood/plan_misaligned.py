@@ -54,13 +54,6 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     #: gains nothing from it (measured, ``docs/floorplan.md`` section 13)
     pose_coordinates = True
 
-    def wall_coordinates(self):
-        """psi's indices of the walls' distances and the plan's nominal distances and
-        normal azimuths, for the sampler's wall coordinates
-        (:func:`bayescal.mcmc.coordinates.wall_shift`)."""
-        nominal = self.plan.param_nominal
-        return self.n_geo + 2 * np.arange(self.n_walls), nominal[0::2], nominal[1::2]
-
     def _height(self, theta, rho, r_t, x, y, dx, dy):
         """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""
         z, zx, zy = cone_height(theta, x, y)

@@ -73,13 +73,18 @@ def pose_shift(theta, rho_ref):
     """The apparent principal point's shift per unit of the laser pose, (..., 2, 4).
 
     A tilt or an offset of the laser cone raises or lowers the laser points by a first
-    harmonic of their azimuth; in the image that moves the laser ring by a first harmonic
-    of its radius, which to first order is a shift of the whole ring, what ``(u0, v0)`` do
-    too. What the data pin is the *apparent* principal point ``(u0, v0) + k . pose``, and
-    ``k`` depends on ``xi``, ``gamma``, ``h`` and ``beta``: along the pose, the posterior
-    of ``(u0, v0)`` bends with them (``docs/floorplan.md`` section 13). ``k`` is the mean
-    over a ring of laser points at horizontal range ``rho_ref`` on the aligned cone of
-    ``theta`` of ``d(u, v)/dz dz/d pose`` (rows u, v; columns tilt_x, tilt_y, offset_x,
+    harmonic of their azimuth; in the image that moves each point of the laser ring along
+    its radius by a first harmonic, which is what a shift of the whole ring, of ``(u0,
+    v0)``, does to the points' radii. The data see only that radial component (each
+    point's place along the ring, its azimuth on its wall, is free), so what they pin is
+    the *apparent* principal point ``(u0, v0) + k . pose``: the translation whose radial
+    components fit the points' radial shifts best (least squares over the ring). On a
+    circular ring a radial shift ``a cos(phi)`` is the translation ``a``, twice the mean
+    pixel shift ``a cos^2(phi)``, which an earlier version took (sampling its ridge
+    half-straightened, ``docs/floorplan.md`` section 13). ``k`` depends on ``xi``,
+    ``gamma``, ``h`` and ``beta``: along the pose, the posterior of ``(u0, v0)`` bends
+    with them. ``k`` is computed on a ring of laser points at horizontal range ``rho_ref``
+    on the aligned cone of ``theta`` (rows u, v; columns tilt_x, tilt_y, offset_x,
     offset_y). It reads only ``xi``, ``gamma``, ``h`` and ``beta``, so the map stays
     triangular with a unit Jacobian.
     """
@@ -90,10 +95,15 @@ def pose_shift(theta, rho_ref):
         xi, gu, gv = (th[..., k, None] for k in range(3))
         r = np.sqrt(x * x + y * y + z * z)
         D = xi * r - z
-        du_dz = -(xi * z / r - 1.0) / (D * D)        # d(x / D)/dz, times gamma x below
-        ku = np.stack([np.mean(gu * x * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
-        kv = np.stack([np.mean(gv * y * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
-    return np.stack([ku, kv], axis=-2)
+        pu, pv = gu * x / D, gv * y / D                 # the ring's pixels about (u0, v0)
+        nu, nv = pu / np.hypot(pu, pv), pv / np.hypot(pu, pv)      # their radial directions
+        dlog = -(xi * z / r - 1.0) / D                 # d log(1 / D) / dz: pixels move radially
+        # the radial shift of each point per unit pose, and the translation fitting it
+        dr = np.stack([(pu * nu + pv * nv) * dlog * g for g in dz[2:]], axis=-1)   # (..., R, 4)
+        n = np.stack([nu, nv], axis=-1)                                          # (..., R, 2)
+        A = np.einsum("...ri,...rj->...ij", n, n)
+        b = np.einsum("...ri,...rk->...ik", n, dr)
+        return np.linalg.solve(A, b)
 
 
 def wall_shift(theta, d, a):
