@@ -19,8 +19,6 @@ returns the 11 numbers ``(theta, pose)`` as the geometry.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..sensor.laser import cone_height
 from .floorplan import PlanLikelihood
 from .misaligned import PoseGlobals
@@ -50,8 +48,9 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     move_weights = (0.45, 0.55)
     hmc_path = 2.0
     #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`):
-    #: halves the autocorrelation time here; the per-point posterior, nearly Gaussian,
-    #: gains nothing from it (measured, ``docs/floorplan.md`` section 13)
+    #: max tau 31 -> 6.9 here (150 points; the walls as they are, not net of the pose);
+    #: the per-point posterior, nearly Gaussian, gains nothing from it (measured,
+    #: ``docs/floorplan.md`` section 13)
     pose_coordinates = True
 
     def _height(self, theta, rho, r_t, x, y, dx, dy):
