@@ -114,12 +114,13 @@ def wall_shift(theta, d, a):
     A tilt or an offset raises the cone by ``dz`` over a wall; the laser point seen at a
     given pixel then slides along its camera ray, and on the aligned cone
     (``z = rho / tan(beta) - h``, camera ray ``z / rho = tan(e)``) its horizontal range
-    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel: the data pin
-    ``d - wall_shift . pose``, not the wall and the pose one by one, and the factor
-    depends on ``h`` and ``beta`` (a curved ridge; ``docs/floorplan.md`` section 13).
-    Evaluated at each wall's foot ``(d cos a, d sin a)`` (the plan's nominal ``d``, ``a``,
-    shape (W,)) on the aligned cone of ``theta``; it reads only ``h`` and ``beta``, so the
-    map stays triangular with a unit Jacobian.
+    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel. The sampler
+    no longer uses it (``Coordinates(walls=...)`` stays for experiments): the data absorb
+    a tilt in the apparent principal point (:func:`pose_shift`), not in the walls, and
+    ``d - wall_shift . pose`` made the posterior less Gaussian (``docs/floorplan.md``
+    section 13, items 4-5). Evaluated at each wall's foot ``(d cos a, d sin a)`` (the
+    plan's nominal ``d``, ``a``, shape (W,)) on the aligned cone of ``theta``; it reads
+    only ``h`` and ``beta``, so the map stays triangular with a unit Jacobian.
     """
     th = _aligned(theta)
     d, a = np.asarray(d, float), np.asarray(a, float)
