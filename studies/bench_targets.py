@@ -9,8 +9,9 @@ Each row is a same-run ratio checked against its target and marked PASS or FAIL:
   z-unknown points; 1000 mm, 3 % z-unknown points);
 * **misaligned plan posterior / aligned plan posterior**: the misaligned model on a floor
   plan (N = 300, 3 % plan, a tilted and offset sensor) over the aligned model on the same
-  pixels, both per 1000 honest ESS, target <= 5x, on two plans (the tilt and offset of
-  the misaligned rows, and (1, 0.5) deg, (3, -2) mm on another room);
+  pixels, both per 1000 honest ESS, target <= 5x, on three plans (the tilt and offset of
+  the misaligned rows, (1, 0.5) deg, (3, -2) mm on another room, and a 5-wall 3500 mm
+  room tilted the other way);
 * **camera posterior** (``--only targets_camera``): ``bc.sample_camera_posterior`` on 10
   simulated views (``bc.simulate_views``, default settings) in CPU seconds per 1000 ESS
   (the smallest over the sampled parameters, median over 3 sampler seeds), target <= 5 s;
@@ -68,6 +69,10 @@ PLANS = (
     ("N=300, 2500 mm, 3 % plan, tilt (1, 0.5) deg, offset (3, -2) mm, another room",
      dict(range_mm=2500, n_points=300, n_walls=6, sigma_px=0.2, approx_error=0.03,
           approx_model="wall", tilt=tuple(np.radians((1.0, 0.5))), offset=(3.0, -2.0), rng=7)),
+    ("N=300, 3500 mm, 3 % plan, 5 walls, tilt (-0.7, 1.2) deg, offset (-4, 6) mm, a third room",
+     dict(range_mm=3500, n_points=300, n_walls=5, sigma_px=0.2, approx_error=0.03,
+          approx_model="wall", tilt=tuple(np.radians((-0.7, 1.2))), offset=(-4.0, 6.0),
+          rng=11)),
 )
 
 

@@ -19,8 +19,6 @@ returns the 11 numbers ``(theta, pose)`` as the geometry.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..sensor.laser import cone_height
 from .floorplan import PlanLikelihood
 from .misaligned import PoseGlobals
@@ -50,16 +48,10 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     move_weights = (0.45, 0.55)
     hmc_path = 2.0
     #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`):
-    #: halves the autocorrelation time here; the per-point posterior, nearly Gaussian,
-    #: gains nothing from it (measured, ``docs/floorplan.md`` section 13)
+    #: max tau 31 -> 6.9 here (150 points; the walls as they are, not net of the pose);
+    #: the per-point posterior, nearly Gaussian, gains nothing from it (measured,
+    #: ``docs/floorplan.md`` section 13)
     pose_coordinates = True
-
-    def wall_coordinates(self):
-        """psi's indices of the walls' distances and the plan's nominal distances and
-        normal azimuths, for the sampler's wall coordinates
-        (:func:`bayescal.mcmc.coordinates.wall_shift`)."""
-        nominal = self.plan.param_nominal
-        return self.n_geo + 2 * np.arange(self.n_walls), nominal[0::2], nominal[1::2]
 
     def _height(self, theta, rho, r_t, x, y, dx, dy):
         """The tilted cone's height ``z`` (..., N) above the wall point and ``dz/dt``."""

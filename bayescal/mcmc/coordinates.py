@@ -65,7 +65,9 @@ def _aligned(theta):
     return th
 
 
-#: azimuths of the reference ring on which :func:`pose_shift` is averaged, rad
+#: the entries of theta :func:`pose_shift` reads: xi, gamma_u, gamma_v, h, beta
+_POSE_SHIFT_READS = [0, 1, 2, 5, 6]
+#: azimuths of the reference ring on which :func:`pose_shift` is fitted, rad
 POSE_RING = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
 
 
@@ -73,13 +75,18 @@ def pose_shift(theta, rho_ref):
     """The apparent principal point's shift per unit of the laser pose, (..., 2, 4).
 
     A tilt or an offset of the laser cone raises or lowers the laser points by a first
-    harmonic of their azimuth; in the image that moves the laser ring by a first harmonic
-    of its radius, which to first order is a shift of the whole ring, what ``(u0, v0)`` do
-    too. What the data pin is the *apparent* principal point ``(u0, v0) + k . pose``, and
-    ``k`` depends on ``xi``, ``gamma``, ``h`` and ``beta``: along the pose, the posterior
-    of ``(u0, v0)`` bends with them (``docs/floorplan.md`` section 13). ``k`` is the mean
-    over a ring of laser points at horizontal range ``rho_ref`` on the aligned cone of
-    ``theta`` of ``d(u, v)/dz dz/d pose`` (rows u, v; columns tilt_x, tilt_y, offset_x,
+    harmonic of their azimuth; in the image that moves each point of the laser ring along
+    its radius by a first harmonic, which is what a shift of the whole ring, of ``(u0,
+    v0)``, does to the points' radii. The data see only that radial component (each
+    point's place along the ring, its azimuth on its wall, is free), so what they pin is
+    the *apparent* principal point ``(u0, v0) + k . pose``: the translation whose radial
+    components fit the points' radial shifts best (least squares over the ring). On a
+    circular ring a radial shift ``a cos(phi)`` is the translation ``a``, twice the mean
+    pixel shift ``a cos^2(phi)``, which an earlier version took (sampling its ridge
+    half-straightened, ``docs/floorplan.md`` section 13). ``k`` depends on ``xi``,
+    ``gamma``, ``h`` and ``beta``: along the pose, the posterior of ``(u0, v0)`` bends
+    with them. ``k`` is computed on a ring of laser points at horizontal range ``rho_ref``
+    on the aligned cone of ``theta`` (rows u, v; columns tilt_x, tilt_y, offset_x,
     offset_y). It reads only ``xi``, ``gamma``, ``h`` and ``beta``, so the map stays
     triangular with a unit Jacobian.
     """
@@ -90,10 +97,15 @@ def pose_shift(theta, rho_ref):
         xi, gu, gv = (th[..., k, None] for k in range(3))
         r = np.sqrt(x * x + y * y + z * z)
         D = xi * r - z
-        du_dz = -(xi * z / r - 1.0) / (D * D)        # d(x / D)/dz, times gamma x below
-        ku = np.stack([np.mean(gu * x * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
-        kv = np.stack([np.mean(gv * y * du_dz * g, axis=-1) for g in dz[2:]], axis=-1)
-    return np.stack([ku, kv], axis=-2)
+        pu, pv = gu * x / D, gv * y / D                 # the ring's pixels about (u0, v0)
+        nu, nv = pu / np.hypot(pu, pv), pv / np.hypot(pu, pv)      # their radial directions
+        dlog = -(xi * z / r - 1.0) / D                 # d log(1 / D) / dz: pixels move radially
+        # the radial shift of each point per unit pose, and the translation fitting it
+        dr = np.stack([(pu * nu + pv * nv) * dlog * g for g in dz[2:]], axis=-1)   # (..., R, 4)
+        n = np.stack([nu, nv], axis=-1)                                          # (..., R, 2)
+        A = np.einsum("...ri,...rj->...ij", n, n)
+        b = np.einsum("...ri,...rk->...ik", n, dr)
+        return np.linalg.solve(A, b)
 
 
 def wall_shift(theta, d, a):
@@ -102,12 +114,13 @@ def wall_shift(theta, d, a):
     A tilt or an offset raises the cone by ``dz`` over a wall; the laser point seen at a
     given pixel then slides along its camera ray, and on the aligned cone
     (``z = rho / tan(beta) - h``, camera ray ``z / rho = tan(e)``) its horizontal range
-    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel: the data pin
-    ``d - wall_shift . pose``, not the wall and the pose one by one, and the factor
-    depends on ``h`` and ``beta`` (a curved ridge; ``docs/floorplan.md`` section 13).
-    Evaluated at each wall's foot ``(d cos a, d sin a)`` (the plan's nominal ``d``, ``a``,
-    shape (W,)) on the aligned cone of ``theta``; it reads only ``h`` and ``beta``, so the
-    map stays triangular with a unit Jacobian.
+    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel. The sampler
+    no longer uses it (``Coordinates(walls=...)`` stays for experiments): the data absorb
+    a tilt in the apparent principal point (:func:`pose_shift`), not in the walls, and
+    ``d - wall_shift . pose`` made the posterior less Gaussian (``docs/floorplan.md``
+    section 13, items 4-5). Evaluated at each wall's foot ``(d cos a, d sin a)`` (the
+    plan's nominal ``d``, ``a``, shape (W,)) on the aligned cone of ``theta``; it reads
+    only ``h`` and ``beta``, so the map stays triangular with a unit Jacobian.
     """
     th = _aligned(theta)
     d, a = np.asarray(d, float), np.asarray(a, float)
@@ -180,8 +193,18 @@ class Coordinates:
         return ring_scale(psi, self.rho_ref), depth_scale(psi)
 
     def _shift(self, psi):
-        """``pose_shift . pose`` (..., 2) of psi (its xi, gamma, h, beta and pose)."""
-        return np.einsum("...ij,...j->...i", pose_shift(psi, self.rho_ref), psi[..., 7:11])
+        """``pose_shift . pose`` (..., 2) of psi (its xi, gamma, h, beta and pose).
+
+        ``k`` is computed once per distinct ``(xi, gamma, h, beta)``: the sampler's
+        gradient moves each coordinate in turn (central differences of the prior through
+        this map), and all but those five leave ``k`` as it is (same floats), so most
+        rows repeat (half the gradient's cost before)."""
+        flat = psi.reshape(-1, psi.shape[-1])
+        keys, inverse = np.unique(flat[:, _POSE_SHIFT_READS], axis=0, return_inverse=True)
+        rows = np.zeros((len(keys), 11))
+        rows[:, _POSE_SHIFT_READS] = keys
+        k = pose_shift(rows, self.rho_ref)[inverse.ravel()]
+        return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
 
     def _wall_shift(self, psi):
         """``wall_shift . pose`` (..., W) of psi (its h, beta and pose)."""
