@@ -24,7 +24,8 @@ def z_scores():
         lp = bc.extract_laser(img, background=truth.background)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            r = bc.calibrate_simultaneous(lp.pixels[~lp.flagged], ds.floor_plan, sigma_px=None)
+            r = bc.calibrate_simultaneous(lp.pixels[~lp.flagged], ds.floor_plan, sigma_px=None,
+                                          offset_sd=lp.offset_sd)
         sd = np.sqrt(np.diag(r.covariance_identifiable))
         rows.append((r.extras["theta"] - p.to_identifiable()) / sd)
     return np.array(rows)
@@ -34,17 +35,18 @@ def z_scores():
 def test_intervals_cover_the_truth_except_the_principal_point(z_scores):
     # 90 % intervals of xi, gamma_u, gamma_v, h, beta: coverage over 20 replications.
     # A true 0.9 gives < 0.75 with probability 0.04 per parameter (binomial); measured 1.0
-    # on 20 replications, z rms 0.03-0.18 (conservative: the intervals are wide)
+    # on 20 replications, z rms 0.04-0.24 (conservative: the intervals are wide)
     cover = np.mean(np.abs(z_scores) < Z90, axis=0)
     keep = [0, 1, 2, 5, 6]
     assert np.all(cover[keep] >= 0.75), cover
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known: texture under the stripe gives sub-pixel errors correlated "
-                   "along the ring, which per-point covariances do not carry; u0, v0 (informed "
-                   "by every point) get intervals too narrow (coverage 0.80 and 0.75, z rms "
-                   "1.26 and 1.36, on 20 replications). docs/images.md", strict=False)
 def test_principal_point_intervals_cover_the_truth(z_scores):
+    # u0, v0 are informed by every point, so an error shared along the ring (texture under
+    # the stripe) matters most for them: the extractor's offset_sd, passed to the fit,
+    # carries it. Measured: coverage 0.95 and 0.95, z rms 0.75 and 0.73 on 20 replications
+    # (without the offset 0.70 and 0.75, z rms 1.53 and 1.46). Same false-failure rate as
+    # above (0.04 per parameter).
     cover = np.mean(np.abs(z_scores[:, 3:5]) < Z90, axis=0)
     assert np.all(cover >= 0.75), cover
