@@ -19,6 +19,8 @@ it (only ``alpha (xi + phi)`` is seen: fact 1, same section).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .._validation import check_positive
@@ -40,6 +42,7 @@ from ..sensor.parameters import (
     SensorParams,
     from_identifiable,
     identifiable_jacobian,
+    offset_variance,
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES, LaserPose
@@ -73,6 +76,21 @@ def _resolve_init(init, prior):
 _REQUIRED = object()      # sigma_scene: required with approximate points, absent with a plan
 
 
+def _offset_on_failure(fit):
+    """``fit`` whose ConvergenceError carries a result with the offset too, as a converged
+    result does (the command line saves that result)."""
+    @functools.wraps(fit)
+    def wrapped(*args, **kwargs):
+        try:
+            return fit(*args, **kwargs)
+        except ConvergenceError as exc:
+            if exc.result is not None:
+                _with_offset(exc.result, float(kwargs.get("offset_sd", 0.0)))
+            raise
+    return wrapped
+
+
+@_offset_on_failure
 def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQUIRED, prior=None,
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
@@ -109,7 +127,9 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         of them all (``bc.extract_laser(...).offset_sd``). A common translation is exactly
         a shift of ``(u0, v0)``, so the fit is unchanged and ``offset_sd**2`` is added to
         the variances of u0 and v0 (a nuisance translation with a Gaussian prior,
-        marginalised).
+        marginalised). Exact when the prior on u0 and v0 is wide (the default); with an
+        informative one (``camera=``) only the data's share should grow, so the
+        intervals are then conservative (:func:`~bayescal.sensor.parameters.offset_variance`).
     prior : dict, optional
         ``{name: scipy.stats frozen distribution}`` for any of the eight
         parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
@@ -236,16 +256,17 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     return _with_offset(result, offset_sd)
 
 
+
 def _with_offset(result, offset_sd):
     """``result`` with ``offset_sd**2`` (px^2) added to the variances of u0 and v0: a
     translation shared by every pixel is a shift of the principal point, the rest of the fit
     unchanged (``extras["offset_sd"]`` records it)."""
     result.extras["offset_sd"] = offset_sd
     if offset_sd > 0:
-        iu = IDENTIFIABLE_NAMES.index("u0")
-        result.covariance_identifiable[iu:iu + 2, iu:iu + 2] += offset_sd ** 2 * np.eye(2)
-        ip = PARAM_NAMES.index("u0")
-        result._covariance[ip:ip + 2, ip:ip + 2] += offset_sd ** 2 * np.eye(2)
+        for names, attr in ((IDENTIFIABLE_NAMES, "covariance_identifiable"),
+                            (PARAM_NAMES, "_covariance")):
+            cov = getattr(result, attr)
+            setattr(result, attr, cov + offset_variance(names, offset_sd, size=len(cov)))
     return result
 
 

@@ -35,7 +35,7 @@ _META_RE = re.compile(r"^#\s*image_size\s*[:=]\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 #: axis): ``# offset_sd: 0.02`` (``bayescal extract`` writes it; calibrate adds its variance
 #: to u0 and v0)
 OFFSET_SD_KEY = "offset_sd"
-_OFFSET_RE = re.compile(r"^#\s*offset_sd\s*[:=]\s*(\S+)\s*(px)?\s*$")
+_OFFSET_RE = re.compile(r"^#\s*offset_sd\s*[:=]\s*(\S+?)\s*(?:px)?\s*$")
 
 
 def image_size_line(size):

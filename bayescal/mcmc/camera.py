@@ -167,6 +167,7 @@ def _imh_check(target, imh, rng, n):
     lp = target(x)
     logw = lp - imh.log_q(x)
     logw = np.where(np.isfinite(logw), logw, -np.inf)
+    logw = logw[:len(logw) // 2 * 2]                       # pairs: an odd last draw is left
     with np.errstate(invalid="ignore", over="ignore"):
         ratio = np.nan_to_num(np.exp(logw[1::2] - logw[::2]), nan=0.0)   # both outside: 0
     return x, lp, float(np.mean(np.minimum(1.0, ratio)))

@@ -226,10 +226,9 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     names = tuple(lik.extra_names)
     rho_ref = getattr(lik, "reference_range", None)
     pose = getattr(lik, "pose_coordinates", False) and rho_ref is not None
-    walls = lik.wall_coordinates() if pose and hasattr(lik, "wall_coordinates") else None
     coords = Coordinates(rho_ref,
                          7 + names.index("outlier_frac") if "outlier_frac" in names else None,
-                         pose=pose, walls=walls, ring=not _camera_holds_gamma(prior, cov_psi_map))
+                         pose=pose, ring=not _camera_holds_gamma(prior, cov_psi_map))
     target = CollapsedTarget(lik, prior, q_map, n_iter, coords)
     if n_tune is None:
         # HMC mixes fast: short tuning rounds suffice (tune_proposal pools the last two

@@ -16,7 +16,7 @@ from scipy.special import expit, logit
 
 from ..sensor.laser import cone_height
 
-__all__ = ["ring_scale", "depth_scale", "pose_shift", "wall_shift", "Coordinates", "log_jacobian",
+__all__ = ["ring_scale", "depth_scale", "pose_shift", "Coordinates", "log_jacobian",
            "to_sampling", "from_sampling", "sampling_jacobian"]
 
 
@@ -108,28 +108,6 @@ def pose_shift(theta, rho_ref):
         return np.linalg.solve(A, b)
 
 
-def wall_shift(theta, d, a):
-    """The walls' distance shift per unit of the laser pose that keeps their pixels, (..., W, 4).
-
-    A tilt or an offset raises the cone by ``dz`` over a wall; the laser point seen at a
-    given pixel then slides along its camera ray, and on the aligned cone
-    (``z = rho / tan(beta) - h``, camera ray ``z / rho = tan(e)``) its horizontal range
-    moves by ``-rho / h * dz``. Moving the wall by as much keeps the pixel. The sampler
-    no longer uses it (``Coordinates(walls=...)`` stays for experiments): the data absorb
-    a tilt in the apparent principal point (:func:`pose_shift`), not in the walls, and
-    ``d - wall_shift . pose`` made the posterior less Gaussian (``docs/floorplan.md``
-    section 13, items 4-5). Evaluated at each wall's foot ``(d cos a, d sin a)`` (the
-    plan's nominal ``d``, ``a``, shape (W,)) on the aligned cone of ``theta``; it reads
-    only ``h`` and ``beta``, so the map stays triangular with a unit Jacobian.
-    """
-    th = _aligned(theta)
-    d, a = np.asarray(d, float), np.asarray(a, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        _, _, _, dz = cone_height(th, d * np.cos(a), d * np.sin(a), geometry=True)
-        c = -d / th[..., 5, None]
-        return np.stack([c * g for g in dz[2:]], axis=-1)
-
-
 class Coordinates:
     """The sampler's coordinates ``s`` of the globals ``psi``.
 
@@ -154,10 +132,6 @@ class Coordinates:
         psi carries the laser pose at 7:11 (misaligned model): ``(u0, v0)`` are
         sampled as the apparent principal point ``(u0, v0) + pose_shift . pose``
         (:func:`pose_shift`; needs a finite ``rho_ref``).
-    walls : tuple of ndarray, optional
-        With ``pose`` on a floor plan: psi's indices of the walls' distances, and the
-        plan's nominal distances and normal azimuths, each (W,). Each distance is
-        sampled as ``d - wall_shift . pose`` (:func:`wall_shift`).
     ring : bool
         Sample the ring radii and ``H`` (default); ``False`` keeps ``gamma_u``,
         ``gamma_v`` and ``h`` themselves: for a camera calibrated beforehand whose
@@ -166,7 +140,7 @@ class Coordinates:
         to the laser").
     """
 
-    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, walls=None, ring=True):
+    def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, ring=True):
         rho_ref = float(np.inf if rho_ref is None else rho_ref)
         if not rho_ref > 0:
             raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
@@ -175,16 +149,12 @@ class Coordinates:
         self.rho_ref = rho_ref
         self.frac_index = None if frac_index is None else int(frac_index)
         self.pose = bool(pose)
-        if walls is not None and not self.pose:
-            raise ValueError("the walls' coordinates need pose=True (they follow the pose)")
-        self.walls = None if walls is None else tuple(np.asarray(w) for w in walls)
         self.ring = bool(ring)
 
     def __repr__(self):
-        walls = "" if self.walls is None else f", walls={len(self.walls[0])}"
         ring = "" if self.ring else ", ring=False"
         return (f"Coordinates(rho_ref={self.rho_ref:g}, frac_index={self.frac_index}, "
-                f"pose={self.pose}{walls}{ring})")
+                f"pose={self.pose}{ring})")
 
     def _scales(self, psi):
         """``(ring_scale, depth_scale)`` of psi, or ones with ``ring=False``."""
@@ -206,16 +176,9 @@ class Coordinates:
         k = pose_shift(rows, self.rho_ref)[inverse.ravel()]
         return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
 
-    def _wall_shift(self, psi):
-        """``wall_shift . pose`` (..., W) of psi (its h, beta and pose)."""
-        _, d, a = self.walls
-        return np.einsum("...ij,...j->...i", wall_shift(psi, d, a), psi[..., 7:11])
-
     def to_sampling(self, psi):
         """psi (..., d) -> s (..., d)."""
         s = np.array(psi, dtype=float)
-        if self.walls is not None:
-            s[..., self.walls[0]] -= self._wall_shift(s)
         if self.pose:
             s[..., 3:5] += self._shift(s)
         k, c = self._scales(s)
@@ -235,8 +198,6 @@ class Coordinates:
         psi[..., 2] /= k
         if self.pose:
             psi[..., 3:5] -= self._shift(psi)
-        if self.walls is not None:
-            psi[..., self.walls[0]] += self._wall_shift(psi)
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):

@@ -38,7 +38,12 @@ from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
 from ..likelihood.priors import Prior, as_prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
-from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, from_identifiable
+from ..sensor.parameters import (
+    IDENTIFIABLE_NAMES,
+    PARAM_NAMES,
+    from_identifiable,
+    offset_variance,
+)
 from ..stats.chains import integrated_time
 from .collapsed import (
     NoiseAtBoundWarning,
@@ -151,7 +156,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         Standard deviation (px, each axis) of a translation shared by every pixel
         (``bc.extract_laser(...).offset_sd``): a shift of ``(u0, v0)``, marginalised by
         adding independent draws of it to their samples (and its variance to the
-        Laplace covariances), as :func:`bayescal.calibrate_simultaneous` does.
+        Laplace covariances), as :func:`bayescal.calibrate_simultaneous` does (exact
+        with a wide prior on u0 and v0, conservative with a camera prior).
 
     Returns
     -------
@@ -215,11 +221,15 @@ def _with_offset(post, offset_sd, rng):
     it (sd ``offset_sd`` px) added to the u0 and v0 samples, its variance to the Laplace
     covariances (a common pixel translation is a shift of the principal point)."""
     if offset_sd > 0:
-        ip, iu = PARAM_NAMES.index("u0"), IDENTIFIABLE_NAMES.index("u0")
-        post.param_samples[:, ip:ip + 2] += rng.normal(0.0, offset_sd,
-                                                       (len(post.param_samples), 2))
-        post.laplace_cov8[ip:ip + 2, ip:ip + 2] += offset_sd ** 2 * np.eye(2)
-        post.laplace_cov7[iu:iu + 2, iu:iu + 2] += offset_sd ** 2 * np.eye(2)
+        # new arrays, not in place: laplace_cov7 may be the MAP result's own covariance
+        ip = PARAM_NAMES.index("u0")
+        shift = np.zeros_like(post.param_samples)
+        shift[:, ip:ip + 2] = rng.normal(0.0, offset_sd, (len(post.param_samples), 2))
+        post.param_samples = post.param_samples + shift
+        post.laplace_cov8 = post.laplace_cov8 + offset_variance(
+            PARAM_NAMES, offset_sd, size=len(post.laplace_cov8))
+        post.laplace_cov7 = post.laplace_cov7 + offset_variance(
+            IDENTIFIABLE_NAMES, offset_sd, size=len(post.laplace_cov7))
     post.offset_sd = offset_sd
     return post
 

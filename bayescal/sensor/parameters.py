@@ -34,6 +34,7 @@ __all__ = [
     "to_identifiable",
     "from_identifiable",
     "identifiable_jacobian",
+    "offset_variance",
 ]
 
 PARAM_NAMES = ("xi", "phi", "alpha_u", "alpha_v", "u0", "v0", "h", "beta")
@@ -276,3 +277,34 @@ def camera_whitener(cov):
     """``W`` with ``W cov W^T = I`` (the inverse of the lower Cholesky factor): the rows
     ``W (x - mean)`` of a camera prior, shape (5, 5)."""
     return np.linalg.inv(np.linalg.cholesky(np.asarray(cov, dtype=float)))
+
+
+def offset_variance(names, offset_sd, *, size=None):
+    """The covariance a translation of every pixel adds: ``offset_sd**2`` (px^2) on the
+    ``(u0, v0)`` diagonal of a matrix over ``names`` (:data:`PARAM_NAMES` or
+    :data:`IDENTIFIABLE_NAMES`, possibly followed by more parameters, which get nothing).
+
+    A common shift of the pixels is a shift of the principal point in eq. (1), so it moves
+    ``u0`` and ``v0`` and nothing else: with a flat prior on them, their posterior variance
+    grows by exactly this much. With an informative prior on the principal point (a
+    camera prior) only the data's share should grow, so adding it is conservative there.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Names of the matrix's leading rows.
+    offset_sd : float
+        sd of the translation, px, each axis.
+    size : int, optional
+        The matrix's size, if larger than ``len(names)`` (a misaligned model's pose rows
+        follow the sensor's).
+
+    Returns
+    -------
+    ndarray, shape (size, size)
+    """
+    n = len(names) if size is None else int(size)
+    out = np.zeros((n, n))
+    i = list(names).index("u0")
+    out[i, i] = out[i + 1, i + 1] = float(offset_sd) ** 2
+    return out

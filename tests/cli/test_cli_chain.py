@@ -82,7 +82,6 @@ def test_chain_least_squares(chain):
     assert len(res.points) == int((~flagged).sum())
     # the ring's shared translation went into the variances of u0 and v0
     assert res.extras["offset_sd"] == bc.image.extract.OFFSET_SD
-    assert np.all(np.sqrt(np.diag(res.covariance_identifiable))[3:5] >= res.extras["offset_sd"])
     # simulate --images renders the design sensor; 5 sd: a false failure ~1e-6 per parameter
     assert np.all(np.abs(_z(res, bc.SensorParams.paper())) < 5)
     info = json.loads((root / "cal" / "run.json").read_text())

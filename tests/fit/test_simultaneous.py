@@ -360,3 +360,17 @@ def test_offset_sd_adds_to_the_principal_point_only():
     with pytest.raises(ValueError, match="offset_sd"):
         bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
                                   sigma_scene=ds.sigma_scene, offset_sd=-1.0)
+
+
+def test_an_unconverged_fit_carries_the_offset_too():
+    # the command line saves the result a ConvergenceError carries: it must hold the offset
+    # like a converged one, on approximate points and on a floor plan
+    ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.02,
+                          approx_model="wall", rng=5)
+    for data, kw in ((ds.approx_points, {"sigma_scene": ds.sigma_scene}), (ds.floor_plan, {})):
+        with pytest.raises(bc.ConvergenceError) as info:
+            bc.calibrate_simultaneous(ds.pixels, data, sigma_px=0.3, max_iter=1,
+                                      offset_sd=0.05, **kw)
+        res = info.value.result
+        assert res.extras["offset_sd"] == 0.05
+        assert np.all(np.diag(res.covariance_identifiable)[3:5] >= 0.05 ** 2)

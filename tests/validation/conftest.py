@@ -1,6 +1,6 @@
 """The shared real views (../shared/data/para relative to the repository, or the folder
-in ``BAYESCAL_PARA_DIR``), read with bc.find_chessboard (OpenCV's detector); tests using them skip when the
-folder or OpenCV is absent."""
+in ``BAYESCAL_PARA_DIR``), read with bc.find_chessboard (OpenCV's detector); tests using
+them skip when the folder or OpenCV is absent."""
 
 import os
 import pathlib
