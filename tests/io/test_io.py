@@ -260,6 +260,9 @@ def test_offset_sd_line_is_read(tmp_path):
     data = load_laser_data(_write(tmp_path, "# image_size: 800x600\n# offset_sd: 0.02\n" + GOOD))
     assert data.pixel_table.meta == {"image_size": (800, 600), "offset_sd": 0.02}
     assert "offset_sd" not in load_laser_data(_write(tmp_path, GOOD, "plain.csv")).pixel_table.meta
+    for unit in ("0.02px", "0.02 px"):                       # the unit may follow the number
+        meta = load_laser_data(_write(tmp_path, f"# offset_sd: {unit}\n" + GOOD, "u.csv"))
+        assert meta.pixel_table.meta == {"offset_sd": 0.02}
 
 
 @pytest.mark.parametrize("value", ["-0.1", "nan", "abc", "inf"])
