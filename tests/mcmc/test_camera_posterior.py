@@ -69,6 +69,18 @@ def test_laplace_proposal_is_exact_on_a_gaussian(rng):
     assert laplace_proposal(lambda x: -logp(x), mean, cov) is None     # not a maximum
 
 
+def test_proposal_check_takes_an_odd_number_of_draws(rng):
+    """The acceptance estimate pairs the draws; an odd count (n_walkers above 200) leaves
+    the last one out, and on its own target the independence move accepts everything."""
+    from bayescal.mcmc.camera import _imh_check
+    from bayescal.mcmc.moves import IndependenceMove
+
+    d, mean, cov = 3, np.zeros(3), np.eye(3)
+    imh = IndependenceMove(mean, cov, scale=1.0, df=1e6)
+    x, lp, acc = _imh_check(lambda x: imh.log_q(x), imh, np.random.RandomState(1), 201)
+    assert x.shape == (201, d) and lp.shape == (201,) and acc == pytest.approx(1.0)
+
+
 @pytest.mark.parametrize("fits, proposal", [(None, "Laplace at the mode"), (1.01, "tuned")])
 def test_the_sampler_uses_the_laplace_proposal_where_it_fits(monkeypatch, fits, proposal):
     """Simulated views take the Laplace proposal at the mode; where its check fails (forced
