@@ -20,7 +20,7 @@ def test_misaligned_plan_posterior_samples_the_pose(tmp_path):
         # a short run: shapes and the pose's place (convergence: the slow test below)
         warnings.simplefilter("ignore", bc.NotConvergedWarning)
         post = bc.sample_posterior(ds.pixels, ds.floor_plan, sigma_px=0.2, model="misaligned",
-                                   rng=4, min_ess=100, n_samples=300, max_steps=300, n_tune=40,
+                                   rng=4, min_ess=100, n_samples=300, max_steps=150, n_tune=30,
                                    progress=False)
     assert post.model == "misaligned"
     assert post.noise_names[:4] == POSE_NAMES and post.noise_names[-1] == "outlier_frac"
