@@ -51,6 +51,10 @@ class Posterior:
         extra global (see :attr:`diagnostics`).
     converged : bool
         The chain met its convergence rule (``diagnostics.rule``).
+    offset_sd : float
+        Pixels; the sd of a translation shared by every pixel (an extractor's
+        ``LaserPixels.offset_sd``) that ``sample_posterior(..., offset_sd=)`` added to the
+        u0 and v0 samples and the Laplace covariances; 0 when none was.
 
     Examples
     --------
@@ -69,7 +73,8 @@ class Posterior:
                  n_walkers, converged, acceptance, imh_acceptance, map_result=None,
                  laplace_cov8=None, laplace_cov7=None, map_params=None, map_points=None,
                  map_point_covariance=None, diagnostics=None, wall_samples=None, plan=None,
-                 outlier_prob=None):
+                 outlier_prob=None, offset_sd=0.0):
+        self.offset_sd = float(offset_sd)
         self.diagnostics = diagnostics      # ChainDiagnostics (tau, ESS, rule) or None
         # (N,) posterior probability that each input row is an outlier (None: no mixture)
         self.outlier_prob = None if outlier_prob is None else np.asarray(outlier_prob, float)

@@ -58,6 +58,7 @@ def save_posterior(post, path, *, overwrite=False):
             "prior": prior, "n_steps": post.n_steps, "burn": post.burn,
             "n_walkers": post.n_walkers, "converged": post.converged,
             "acceptance": post.acceptance, "imh_acceptance": post.imh_acceptance,
+            "offset_sd": post.offset_sd,
             "diagnostics": None if post.diagnostics is None else post.diagnostics.to_dict()}
     arrays = {k: getattr(post, k) for k in ARRAYS}
     if post.sigma_scene is not None:
@@ -112,7 +113,8 @@ def read_posterior(path):
         map_point_covariance=arrays["map_point_covariance"],
         diagnostics=None if meta.get("diagnostics") is None else
         ChainDiagnostics.from_dict(meta["diagnostics"]), wall_samples=wall_samples,
-        plan=_load_plan(plan_arrays), outlier_prob=outlier_prob)
+        plan=_load_plan(plan_arrays), outlier_prob=outlier_prob,
+        offset_sd=meta.get("offset_sd", 0.0))
 
 
 

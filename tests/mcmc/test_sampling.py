@@ -481,5 +481,16 @@ def test_offset_sd_adds_draws_to_the_principal_point_only():
     # the MAP result inside is left as it was fitted (its covariance is not the posterior's)
     np.testing.assert_array_equal(b.map_result.covariance_identifiable,
                                   a.map_result.covariance_identifiable)
+    assert (a.offset_sd, b.offset_sd) == (0.0, 0.5)
     with pytest.raises(ValueError, match="offset_sd"):
         _sample(ds, offset_sd=float("nan"))
+
+
+def test_offset_sd_is_saved_with_the_posterior(tmp_path):
+    ds = _room(60)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", bc.NotConvergedWarning)
+        post = _sample(ds, offset_sd=0.25, max_steps=40, n_samples=20, n_tune=10, rng=3)
+    back = bc.load_posterior(post.save(tmp_path / "post.npz"))
+    assert back.offset_sd == 0.25
+    np.testing.assert_array_equal(back.param_samples, post.param_samples)
