@@ -16,7 +16,7 @@ from ..checks.fit import robust_noise_ratio
 from ..likelihood.outliers import NOISE_TRIM, annealed_outlier_prob, em_update
 from .schur import solve_map
 
-__all__ = ["ROBUST_STEPS", "ROBUST_KEEP", "TRIMMED_NOISE_LIMIT"]
+__all__ = ["ROBUST_STEPS", "ROBUST_KEEP", "TRIMMED_NOISE_LIMIT", "trimmed_weights"]
 
 
 class _MapFit:
@@ -104,6 +104,17 @@ ROBUST_STEPS, ROBUST_KEEP = 4, 0.8
 TRIMMED_NOISE_LIMIT = 1.75
 
 
+def trimmed_weights(badness, outlier_scale):
+    """A concentration step's weights: 1 for the ``ROBUST_KEEP`` fraction of points with
+    the smallest ``badness`` (shape (N,)), the outlier component's ``1/c^2`` for the rest
+    (the same trim for the per-point EM and the floor plan's, :mod:`.plan_robust`)."""
+    n = len(badness)
+    u = np.ones(n)
+    u[np.argsort(-np.asarray(badness, float))[:n - int(ROBUST_KEEP * n)]] = \
+        1.0 / outlier_scale**2
+    return u
+
+
 def _robust_start(lik, prior, fit, theta, q, max_iter):
     """A start a few bad rows cannot drag, for when the plain EM ended on a bound.
 
@@ -118,7 +129,7 @@ def _robust_start(lik, prior, fit, theta, q, max_iter):
     """
     from scipy.stats import chi2
 
-    c, n = lik.outlier_scale, lik.n
+    c = lik.outlier_scale
     dof = np.maximum(lik._n_rows - 2, 1)
     for step in range(ROBUST_STEPS):
         m = lik.min_residual(np.concatenate([theta, fit.extra(lik)]), q)
@@ -127,9 +138,7 @@ def _robust_start(lik, prior, fit, theta, q, max_iter):
             s = robust_noise_ratio(m, dof)
             fit.sig, fit.kappa = fit.sig * s, fit.kappa * s
             m = m / s**2
-        worst = np.argsort(chi2.logsf(m, dof))[:n - int(ROBUST_KEEP * n)]
-        u = np.ones(n)
-        u[worst] = 1.0 / c**2
+        u = trimmed_weights(-chi2.logsf(m, dof), c)
         fit.sol = solve_map(lik, prior, theta, q, sigma_px=fit.sig, w_scene=fit.w_scene(lik),
                             max_iter=max_iter, weights=u)
         theta, q = fit.sol.theta, fit.sol.q

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..checks.fit import fit_problems, robust_noise_ratio
 from ..likelihood.outliers import NOISE_TRIM, trimmed_mean_square
-from .em import ROBUST_KEEP, ROBUST_STEPS, TRIMMED_NOISE_LIMIT
+from .em import ROBUST_KEEP, ROBUST_STEPS, TRIMMED_NOISE_LIMIT, trimmed_weights
 
 __all__ = ["PlanRetry"]
 
@@ -79,9 +79,7 @@ def robust_solution(ops, lik, prior, best, max_iter):
         if lik.infer_px and step == 0:
             s = robust_noise_ratio(m, 1)
             sig, m = sig * s, m / s**2
-        u = np.ones(n)
-        u[np.argsort(-m)[:n - int(ROBUST_KEEP * n)]] = 1.0 / lik.outlier_scale**2
-        lik.em_weights = u
+        lik.em_weights = trimmed_weights(m, lik.outlier_scale)
         sol = ops.solve(lik, prior, g, t, sig, max_iter=max_iter)
         g, t = sol.g, sol.t
         if lik.infer_px:
