@@ -133,7 +133,7 @@ def test_bayes_with_walls(sim, tmp_path, capsys, monkeypatch):
                           rng=4)
     monkeypatch.chdir(tmp_path)
     rc, cap = _main(["calibrate", sim / "laser.csv", "--walls", sim / "walls.csv", "--method",
-                     "bayes", "--max-steps", "400", "--allow-unconverged", "--no-progress",
+                     "bayes", "--max-steps", "150", "--allow-unconverged", "--no-progress",
                      "--truth", sim / "truth.json", "--out", "b"], capsys)
     assert rc == 0, cap.err
     post = bc.load_posterior(tmp_path / "b" / "posterior.npz")
