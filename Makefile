@@ -22,9 +22,13 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.installed
 	$(BIN)/python -m bayescal demo --out $(OUT) --force
 
-## test: the default test suite (a few minutes on 2 cores)
+## test: the default test suite (a few minutes on 2 cores), one pytest worker per core
+## (TEST_WORKERS=0 for a single process); a file's tests share a worker, so its
+## module fixtures are built once, and BLAS runs one thread per worker
+TEST_WORKERS ?= auto
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
+	    $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 $(VENV)/.installed-slow: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test,nuts]"
