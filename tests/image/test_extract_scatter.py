@@ -3,6 +3,7 @@ texture under the stripe moves neighbouring peaks together, so the scatter about
 through a point's neighbours hides part of its error; the check leaves the nearest out."""
 
 import numpy as np
+import pytest
 from test_extract_robust import assert_targets, ours_errors, targets
 
 import bayescal as bc
@@ -51,6 +52,19 @@ def test_textured_walls_with_laser_off_image_single_image_z_rms():
     # normal (``sd_normal``, as studies/extraction_rooms.py scores it). Measured now: kept
     # 0.99, robust sd 0.14 px, gross 0, z rms 1.01
     img, truth = bc.render_image(bc.SensorParams.paper(), bc.room_walls(2500), n_lamps=0,
+                                 with_background=True, rng=np.random.default_rng(102))
+    lp = bc.extract_laser(img, background=truth.background)
+    e, _, kept = ours_errors(lp, truth)
+    assert_targets(targets(e, lp.sd_normal[~lp.flagged], kept, max_rsd=0.25))
+
+
+@pytest.mark.slow
+def test_1280x1024_camera_with_laser_off_image_single_image_z_rms():
+    # the image of seeds 100-103 with the largest z rms before the scale: 2.37 (robust sd
+    # 0.15 px). Measured now: kept 1.00, robust sd 0.15 px, gross 0, z rms 1.05
+    p = bc.SensorParams(**{**bc.SensorParams.paper().as_dict(), "alpha_u": 90.0,
+                           "alpha_v": -90.0, "u0": 640.0, "v0": 512.0})
+    img, truth = bc.render_image(p, bc.room_walls(2500), shape=(1024, 1280), n_lamps=0,
                                  with_background=True, rng=np.random.default_rng(102))
     lp = bc.extract_laser(img, background=truth.background)
     e, _, kept = ours_errors(lp, truth)
