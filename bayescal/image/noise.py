@@ -60,10 +60,10 @@ def ring_scatter_scale(r, var, ok, *, shared_px=3.5):
     The ring is a smooth curve over azimuth, so each point's radius is predicted by a
     quadratic through its neighbours on either side, leaving out those within
     ``shared_px`` of it along the ring (at least 2 profiles): texture under the stripe
-    moves neighbouring peaks together (lag-1 correlation of the errors 0.4-0.7 at 1.7 px
-    spacing, lag-2 0.0-0.3, none beyond, on our textured rooms with a laser-off image), so
-    a smoother through them hides part of the error, as a running median through the point
-    does. The quadratic reaches 5x as far. The squared miss over its variance,
+    moves neighbouring peaks together (lag-1 correlation of the errors 0.45-0.68 at 1.7 px
+    spacing, lag 2 0.01-0.34, lag 4 at most 0.15, on our textured rooms with a laser-off
+    image), so a smoother through them hides part of the error, as a running median through
+    the point does. The quadratic reaches 5x as far. The squared miss over its variance,
     ``var (1 + leverage)`` with the prediction's own, has median 0.455 (a chi-square with
     one degree of freedom) when the variances are right; the median over the ring over
     0.455 is the scale, floored at 1 (a ring that bends within reach, at a room's corner,
