@@ -8,10 +8,10 @@ true ring's normal. Scenarios: textured walls at 2500 mm, a faint ring at 4000 m
 lamps on and off the ring, a red laser in a colour image, a 1280x1024 camera, a tilted laser,
 a near room (1200 mm), and no ring at all (an ExtractionError is the right answer).
 
-Writes ``extraction_rooms.json`` into ``--out``: per scenario and renderer, over seeds, the
-kept fraction of the azimuths (degrees, away from lamps), robust sd, bias, gross errors
-(> 1 px), z rms (error over the given sd, non-gross points), the seconds per extraction, and
-how many images raised ExtractionError.
+Writes ``extraction_rooms.json`` into ``--out``: per scenario and renderer, over seeds (and
+per image, ``trials``), the kept fraction of the azimuths (degrees, away from lamps), robust
+sd, bias, gross errors (> 1 px), z rms (error over the given sd, non-gross points), the
+seconds per extraction, and how many images raised ExtractionError.
 
 Usage::
 
@@ -146,7 +146,7 @@ def run(args, out):
                         scheduler=args.scheduler)
     rows = summarize(trials)
     write_json(out / FILES[0], {"study": "extraction_rooms", "mode": args.mode,
-                                "seed": args.seed, "rows": rows})
+                                "seed": args.seed, "rows": rows, "trials": trials})
     print("| scenario | renderer | laser-off | kept | robust sd | bias | gross | z rms | s |")
     for r in rows:
         bg = "yes" if r["background"] else "no"

@@ -17,7 +17,7 @@ from scipy.ndimage import median_filter
 
 from .._validation import check_positive
 from .doubt import blob_mask, check_ring, dark_core, mirror_disc
-from .noise import noise_model
+from .noise import noise_model, ring_scatter_scale
 from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
 from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
@@ -347,6 +347,8 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
+    if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
+        var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
     cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
