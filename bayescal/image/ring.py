@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_prior"]
+__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_priors"]
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -203,26 +203,42 @@ def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
     return A @ coef, sd
 
 
-def ring_prior(pol, *, z_min=4.0, cap=8.0):
-    """Where the ring is, before any path: a circle through the strong ridge samples near
-    the radius that most azimuths share: its centre (2,), radius px and the robust sd of
-    those samples about it (px, how far the ring strays from a circle), or None.
+def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=2):
+    """Where the ring may be, before any path: circles through the strong ridge samples near
+    the radii that most azimuths share (the histogram's highest peaks, 8 px or more apart),
+    best first: each its centre (2,), radius px and the robust sd of those samples about it
+    (px, how far the ring strays from a circle). Empty when no ridge stands out.
 
     A laser ring is nearly a circle (its elevation changes little with the wall's distance,
     as the laser sits close to the mirror), while texture edges on the walls undulate
     more; a circle found this way keeps the path from following one of those for a sector
-    where it outshines the laser.
+    where it outshines the laser. A rail around the room is a circle too, and may share
+    more azimuths than a faint ring: the extractor weighs each circle's ring by its points.
     """
     sc = pol.score
     peak = (sc > z_min) & (sc >= np.roll(sc, 1, axis=1)) & (sc >= np.roll(sc, -1, axis=1))
     ii, kk = np.nonzero(peak)
     if len(ii) < 12:
-        return None
+        return []
     w = np.minimum(sc[ii, kk], cap)
     hist = np.convolve(np.bincount(kk, weights=w, minlength=len(pol.radii)), np.ones(7), "same")
-    R0 = pol.radii[int(np.argmax(hist))]
     r = pol.radii[kk]
     pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi[ii]), np.sin(pol.phi[ii])], -1)
+    out, top = [], hist.max()
+    for _ in range(n_max):
+        j = int(np.argmax(hist))
+        if not hist[j] > 0.25 * top:
+            break
+        hist[max(0, j - 8):j + 9] = 0.0
+        circle = _circle_near(pts, w, pol.radii[j], r)
+        if circle is not None and all(abs(circle[1] - o[1]) > 3.0 for o in out):
+            out.append(circle)
+    return out
+
+
+def _circle_near(pts, w, R0, r):
+    """A robust circle through the ridge samples ``pts`` (weights ``w``, radii ``r`` about
+    the profiles' centre) near radius ``R0``: (centre, radius, robust sd) or None."""
     near = np.abs(r - R0) <= max(8.0, 0.1 * R0)
     for _ in range(2):
         if np.count_nonzero(near) < 12:
