@@ -21,7 +21,7 @@ from .locate import ring_candidates
 from .noise import noise_model
 from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
-from .ring import circle_fit
+from .ring import circle_fit, ring_curve
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
 
@@ -214,7 +214,7 @@ def _choose(cands, sig, var_img, **kw):
     :data:`CHOICE_MARGIN`."""
     first = best = None
     for cand in cands:
-        lp, _ = _points(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
+        lp, _ = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
         if first is None:
             first = best = lp, cand
             continue
@@ -225,8 +225,25 @@ def _choose(cands, sig, var_img, **kw):
     return best
 
 
+def _rescued(sig, var_img, pol, k, on_blob, **kw):
+    """:func:`_points`, then once more where points lay off the ring's robust curve, each
+    such profile's peak looked for within 1 px of the curve (where a rail or a text bar
+    crossing the stripe took the path, the laser's own peak is often still there)."""
+    lp, gates, curve = _points(sig, var_img, pol, k, on_blob, **kw)
+    off = gates["off curve"]
+    if not off.any():
+        return lp, gates
+    K, i = len(pol.radii), np.arange(len(k))
+    k0 = np.clip(np.rint(np.nan_to_num(curve, nan=0.0) - pol.radii[0]).astype(int), 2, K - 3)
+    cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
+    near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    lp, gates, _ = _points(sig, var_img, pol, np.where(off, near, k), on_blob, curve=curve,
+                           **kw)
+    return lp, gates
+
+
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False):
+            flank=False, curve=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
@@ -260,12 +277,17 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
+    # a run of points on another ridge (a rail, a text bar) for a few degrees moves the
+    # running median with it: a wider, robust local quadratic of the ring does not follow it
+    curve = ring_curve(pol.phi, r, ~flagged) if curve is None else curve
+    gates["off curve"] = np.abs(np.nan_to_num(r - curve)) > np.maximum(gate_px, 4 * sd_loc)
+    flagged = flagged | gates["off curve"]
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
     cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
-    return lp, gates
+    return lp, gates, curve
 
 
 #: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a

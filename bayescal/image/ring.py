@@ -17,7 +17,8 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_priors"]
+__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_priors",
+           "ring_curve"]
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -251,3 +252,44 @@ def _circle_near(pts, w, R0, r):
     if np.count_nonzero(near) < 12:
         return None
     return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))
+
+
+def ring_curve(phi, r, valid, *, half_deg=30.0, iters=4):
+    """A robust local quadratic of the ring's radius over azimuth: at each profile, a
+    tricube-weighted quadratic in the azimuth over ``half_deg`` degrees either side,
+    through the ``valid`` radii, refitted with Tukey's biweight on its residuals (so that a
+    run of points on another ridge, a rail or a text bar for a few degrees, does not bend
+    it). Wider than the running median's window, it sees such a run as off the ring;
+    quadratic, it follows the ring's slope and bend between a room's corners.
+
+    Parameters
+    ----------
+    phi, r : ndarray, shape (n,)
+        Azimuths (rad, evenly spaced) and radii (px) of the profiles' points.
+    valid : ndarray of bool, shape (n,)
+        Points that may carry the curve.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The curve's radius at each profile, px (NaN where no valid point is near).
+    """
+    n = len(phi)
+    half = max(3, int(round(half_deg / 360.0 * n)))
+    off = np.arange(-half, half + 1)
+    idx = (np.arange(n)[:, None] + off[None]) % n
+    x = off / half
+    X = np.stack([np.ones_like(x), x, x ** 2], -1)               # (m, 3)
+    ok = valid & np.isfinite(r)
+    y = np.where(ok, r, 0.0)[idx]
+    tri = (1 - np.abs(x) ** 3)[None] ** 3 * ok[idx]
+    w = tri
+    coef = np.full((n, 3), np.nan)
+    for _ in range(iters):
+        A = np.einsum("nm,mp,mq->npq", w, X, X) + 1e-9 * np.eye(3)
+        coef = np.linalg.solve(A, np.einsum("nm,mp,nm->np", w, X, y)[..., None])[..., 0]
+        res = y - coef @ X.T
+        s = max(0.1, 1.4826 * float(np.median(np.abs(r[ok] - coef[ok, 0])))) if ok.any() else 1.0
+        u = res / (4.685 * s)
+        w = tri * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    return np.where(tri.sum(1) > 3, coef[:, 0], np.nan)
