@@ -279,8 +279,9 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     flagged = np.logical_or.reduce(list(gates.values()))
     # a run of points on another ridge (a rail, a text bar) for a few degrees moves the
     # running median with it: a wider, robust local quadratic of the ring does not follow it
-    curve = ring_curve(pol.phi, r, ~flagged) if curve is None else curve
-    gates["off curve"] = np.abs(np.nan_to_num(r - curve)) > np.maximum(gate_px, 4 * sd_loc)
+    curve = ring_curve(pol.phi, r, ~flagged, half_deg=CURVE[0]) if curve is None else curve
+    gates["off curve"] = np.abs(np.nan_to_num(r - curve)) > np.maximum(CURVE[1] * gate_px,
+                                                                       CURVE[2] * sd_loc)
     flagged = flagged | gates["off curve"]
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
@@ -288,6 +289,11 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
     return lp, gates, curve
+
+
+#: the ring's robust curve (:func:`~bayescal.image.ring.ring_curve`): half-window (deg), and
+#: its gate at max(CURVE[1] gate_px, CURVE[2] sd)
+CURVE = (30.0, 1.0, 4.0)
 
 
 #: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a

@@ -204,7 +204,7 @@ def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
     return A @ coef, sd
 
 
-def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=2):
+def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=3):
     """Where the ring may be, before any path: circles through the strong ridge samples near
     the radii that most azimuths share (the histogram's highest peaks, 8 px or more apart),
     best first: each its centre (2,), radius px and the robust sd of those samples about it
@@ -230,17 +230,20 @@ def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=2):
         j = int(np.argmax(hist))
         if not hist[j] > 0.25 * top:
             break
-        hist[max(0, j - 8):j + 9] = 0.0
-        circle = _circle_near(pts, w, pol.radii[j], r)
+        hist[max(0, j - 5):j + 6] = 0.0
+        # the first circle may stray from the profiles' centre; the others are looked for
+        # closer to their radius, so that a stronger ridge beside one does not take its fit
+        circle = _circle_near(pts, w, pol.radii[j], r, wide=not out)
         if circle is not None and all(abs(circle[1] - o[1]) > 3.0 for o in out):
             out.append(circle)
     return out
 
 
-def _circle_near(pts, w, R0, r):
+def _circle_near(pts, w, R0, r, *, wide=True):
     """A robust circle through the ridge samples ``pts`` (weights ``w``, radii ``r`` about
-    the profiles' centre) near radius ``R0``: (centre, radius, robust sd) or None."""
-    near = np.abs(r - R0) <= max(8.0, 0.1 * R0)
+    the profiles' centre) near radius ``R0`` (within 8 px or 10 %; 4 px or 5 % unless
+    ``wide``): (centre, radius, robust sd) or None."""
+    near = np.abs(r - R0) <= (max(8.0, 0.1 * R0) if wide else max(4.0, 0.05 * R0))
     for _ in range(2):
         if np.count_nonzero(near) < 12:
             return None
