@@ -257,7 +257,7 @@ def _circle_near(pts, w, R0, r, *, wide=True):
     return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))
 
 
-def ring_curve(phi, r, valid, *, half_deg=30.0, iters=4):
+def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
     """A robust local quadratic of the ring's radius over azimuth: at each profile, a
     tricube-weighted quadratic in the azimuth over ``half_deg`` degrees either side,
     through the ``valid`` radii, refitted with Tukey's biweight on its residuals (so that a
@@ -288,11 +288,13 @@ def ring_curve(phi, r, valid, *, half_deg=30.0, iters=4):
     tri = (1 - np.abs(x) ** 3)[None] ** 3 * ok[idx]
     w = tri
     coef = np.full((n, 3), np.nan)
-    for _ in range(iters):
+    for t in range(iters):
         A = np.einsum("nm,mp,mq->npq", w, X, X) + 1e-9 * np.eye(3)
         coef = np.linalg.solve(A, np.einsum("nm,mp,nm->np", w, X, y)[..., None])[..., 0]
         res = y - coef @ X.T
-        s = max(0.1, 1.4826 * float(np.median(np.abs(r[ok] - coef[ok, 0])))) if ok.any() else 1.0
-        u = res / (4.685 * s)
+        s = 1.4826 * float(np.median(np.abs(r[ok] - coef[ok, 0]))) if ok.any() else 1.0
+        # the scale shrinks from 1 px over the refits: a fit first pulled by a run off the
+        # ring is not locked there by a scale already small
+        u = res / (4.685 * max(s, 0.1, 2.0 ** -t))
         w = tri * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
     return np.where(tri.sum(1) > 3, coef[:, 0], np.nan)
