@@ -231,18 +231,22 @@ def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=3):
         if not hist[j] > 0.25 * top:
             break
         hist[max(0, j - 5):j + 6] = 0.0
-        # the first circle may stray from the profiles' centre; the others are looked for
-        # closer to their radius, so that a stronger ridge beside one does not take its fit
-        circle = _circle_near(pts, w, pol.radii[j], r, wide=not out)
-        if circle is not None and all(abs(circle[1] - o[1]) > 3.0 for o in out):
-            out.append(circle)
+        # the first circle may stray from the profiles' centre (a window of 8 px or 10 %);
+        # each is also looked for closer to its radius (4 px or 5 %), so that a ridge
+        # beside it (a rail 6-30 px away) does not take its fit
+        for wide in ((True, False) if not out else (False,)):
+            circle = _circle_near(pts, w, pol.radii[j], r, wide=wide)
+            if circle is not None and all(abs(circle[1] - o[1]) > 3.0 for o in out):
+                out.append(circle)
     return out
 
 
 def _circle_near(pts, w, R0, r, *, wide=True):
     """A robust circle through the ridge samples ``pts`` (weights ``w``, radii ``r`` about
-    the profiles' centre) near radius ``R0`` (within 8 px or 10 %; 4 px or 5 % unless
-    ``wide``): (centre, radius, robust sd) or None."""
+    the profiles' centre) near radius ``R0``: the samples within 8 px or 10 % of it, then
+    within 5 px or 6 % of the fitted circle; unless ``wide``, 4 px or 5 %, then 4 px or 3 %
+    (a ring of 345 px with a rail 20-30 px outside it: the wide window fitted both).
+    Returns (centre, radius, robust sd) or None."""
     near = np.abs(r - R0) <= (max(8.0, 0.1 * R0) if wide else max(4.0, 0.05 * R0))
     for _ in range(2):
         if np.count_nonzero(near) < 12:
@@ -251,7 +255,7 @@ def _circle_near(pts, w, R0, r, *, wide=True):
         if not np.isfinite(R):
             return None
         res = np.hypot(*(pts - c).T) - R
-        near = np.abs(res) <= max(5.0, 0.06 * R)
+        near = np.abs(res) <= (max(5.0, 0.06 * R) if wide else max(4.0, 0.03 * R))
     if np.count_nonzero(near) < 12:
         return None
     return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))
