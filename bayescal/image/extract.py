@@ -21,7 +21,7 @@ from .locate import ring_candidates
 from .noise import noise_model
 from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
-from .ring import circle_fit, ring_curve
+from .ring import circle_fit, ridge_near, ring_curve
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
 
@@ -128,8 +128,11 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     the mirror's edge; the ring is the closed ridge through the profiles found by dynamic
     programming over azimuth (the ring is continuous: one point per azimuth, small radial
     steps between neighbours), which wall texture, lamps and glints off the ring do not
-    follow. Each point is then a Gaussian fit to five samples, its variance propagated
-    from the image noise (``docs/images.md``).
+    follow. A rail or a door frame can be such a ridge too: each circle the first pass
+    suggests gets its own path, and the ring that keeps the most azimuths wins. Each point
+    is then a Gaussian fit to five samples, its variance propagated from the image noise;
+    points off a robust local curve of the ring are looked for again near it, then flagged
+    (``docs/images.md``).
 
     Parameters
     ----------
@@ -235,10 +238,7 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
     off = gates["off curve"]
     if not off.any():
         return lp, gates
-    K, i = len(pol.radii), np.arange(len(k))
-    k0 = np.clip(np.rint(np.nan_to_num(curve, nan=0.0) - pol.radii[0]).astype(int), 2, K - 3)
-    cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
-    near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    near = ridge_near(pol, np.rint(np.nan_to_num(curve, nan=0.0) - pol.radii[0]).astype(int), 1)
     lp, gates, _ = _points(sig, var_img, pol, np.where(off, near, k), on_blob, curve=curve,
                            **kw)
     return lp, gates

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .doubt import blob_mask, dark_core, mirror_disc
-from .ring import circle_fit, polar_image, ring_model, ring_path, ring_priors
+from .ring import circle_fit, polar_image, ridge_near, ring_model, ring_path, ring_priors
 
 __all__ = ["RingCandidate", "ring_candidates", "PRIOR_TOL", "PRIOR_SLOPE"]
 
@@ -82,18 +82,14 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
         gains = (gain, ring_path(off)[2])
     # the highest ridge sample within 2 px of the path (the path moves in whole steps)
-    K, i = len(pol.radii), np.arange(n)
-    cand = np.clip(path[:, None] + np.arange(-2, 3)[None], 2, K - 3)
-    best = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    best = ridge_near(pol, path, 2)
     # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
     # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
-    z = pol.score[i, path]
+    z = pol.score[np.arange(n), path]
     model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
     stray = np.abs(pol.radii[best] - model) > 2.0
     if np.any(stray):
-        k0 = np.clip(np.rint(model - pol.radii[0]).astype(int), 2, K - 3)
-        cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
-        near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+        near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
         best = np.where(stray, near, best)
     pol.model = model
     return pol, best, closure, on_blob, gains

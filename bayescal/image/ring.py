@@ -17,8 +17,8 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_priors",
-           "ring_curve"]
+__all__ = ["PolarImage", "polar_image", "ridge_near", "ring_path", "circle_fit", "ring_model",
+           "ring_priors", "ring_curve"]
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -86,6 +86,14 @@ def _local_sd(x, valid, *, block=(8, 32)):
     rows = (1 - fi) * med[i0 % bn] + fi * med[(i0 + 1) % bn]
     s = (1 - fk) * rows[:, k0] + fk * rows[:, k1]
     return np.maximum(s, 1e-9 + 1e-6 * fill)
+
+
+def ridge_near(pol, k, half):
+    """Per profile, the index of the highest high-passed sample within ``half`` samples of
+    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5)."""
+    K = len(pol.radii)
+    cand = np.clip(np.asarray(k)[:, None] + np.arange(-half, half + 1)[None], 2, K - 3)
+    return cand[np.arange(len(cand)), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
 
 
 def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
