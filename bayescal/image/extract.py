@@ -16,11 +16,12 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from .._validation import check_positive
-from .doubt import blob_mask, check_ring, dark_core, mirror_disc
+from .doubt import check_ring
+from .locate import ring_candidates
 from .noise import noise_model, ring_scatter_scale
 from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
-from .ring import circle_fit, polar_image, ring_model, ring_path, ring_prior
+from .ring import circle_fit, ridge_near, ring_curve
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
 
@@ -28,6 +29,13 @@ __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFF
 #: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
 #: measured 0.01-0.04 px per image on two renderers (docs/images.md)
 OFFSET_SD = 0.02
+
+#: how much larger a fraction of its azimuths another candidate ring must keep to replace the
+#: first (the circle most azimuths share). Measured without a laser-off image: renderer2's
+#: tilted cone beside its rail (rng 6) has its laser ring 0.011 ahead of a ring that follows
+#: the rail for half its turn; the closest wrong ring came 0.003 behind the laser's
+CHOICE_MARGIN = 0.01
+
 
 @dataclass(frozen=True)
 class LaserPixels:
@@ -110,86 +118,6 @@ def _saturation(image, gray):
     return float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(gray.max())
 
 
-#: the path's cost for straying from the ring's circle: free within max(PRIOR_TOL[0] px,
-#: PRIOR_TOL[1] x the ridge's sd about the circle), then PRIOR_SLOPE sds per px
-PRIOR_TOL = (3.0, 4.0)
-PRIOR_SLOPE = 1.0
-
-
-def _start(sig, raw, sat, center, radius, highpass_px):
-    """Centre of the first profiles, the search's outer radius and the mirror's disc."""
-    mirror = mirror_disc(raw)
-    H, W = raw.shape
-    if center is not None:
-        c = np.asarray(center, dtype=float)
-    elif mirror is not None:
-        c = mirror[0]
-    else:
-        c = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
-    corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
-    r_max = float(np.max(np.hypot(*(corners - c).T)))
-    band = radius
-    if mirror is not None:          # the mirror's rim is a circle too: stay inside it
-        r_max = min(r_max, mirror[1] - max(8.0, 0.05 * mirror[1]))
-    # the ring lies outside the camera's own dark reflection (its edge is a circle too)
-    core = dark_core(raw, c, mirror[1] if mirror is not None else 0.5 * min(H, W))
-    if core > 0:                    # past the high-pass's reach from its edge
-        lo = core + 0.5 * highpass_px + 2.0
-        band = (lo, r_max) if radius is None else (max(radius[0], lo), radius[1])
-    if radius is not None:
-        r_max = min(r_max, float(radius[1]) + 8.0)
-    return c, r_max, mirror, band
-
-
-def _score_without_blobs(pol, blobs):
-    """Zero the ridge score on saturated blobs: a lamp neither attracts nor repels the path."""
-    u = pol.center[0] + np.cos(pol.phi)[:, None] * pol.radii[None]
-    v = pol.center[1] + np.sin(pol.phi)[:, None] * pol.radii[None]
-    H, W = blobs.shape
-    on = blobs[np.clip(np.rint(v).astype(int), 0, H - 1), np.clip(np.rint(u).astype(int), 0, W - 1)]
-    pol.score[on] = 0.0
-    return on
-
-
-def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False,
-            prior=None):
-    """Polar image around ``c``, the ring's path in it (radius index per azimuth), its
-    closure, the blob mask in polar coordinates, and the path's gain and (``runner_up``)
-    that of the best closed path 8 px or more off it."""
-    r_min = 0.0 if r_band is None else r_band[0] - highpass_px
-    pol = polar_image(sig, c, n_azimuth=n, r_max=r_max, highpass_px=highpass_px, r_min=r_min)
-    if r_band is not None:
-        pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
-    on_blob = _score_without_blobs(pol, blobs)
-    if prior is not None:
-        # the ring is nearly a circle about ``c`` (radius, tolerance px): a cost for
-        # straying farther from it, PRIOR_SLOPE noise sds per azimuth per px
-        far = np.maximum(np.abs(pol.radii - prior[0]) - prior[1], 0.0)
-        pol.score = pol.score - PRIOR_SLOPE * far[None, :]
-    path, closure, gain = ring_path(pol.score)
-    gains = (gain, np.nan)
-    if runner_up:
-        off = pol.score.copy()
-        off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
-        gains = (gain, ring_path(off)[2])
-    # the highest ridge sample within 2 px of the path (the path moves in whole steps)
-    K, i = len(pol.radii), np.arange(n)
-    cand = np.clip(path[:, None] + np.arange(-2, 3)[None], 2, K - 3)
-    best = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
-    # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
-    # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
-    z = pol.score[i, path]
-    model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
-    stray = np.abs(pol.radii[best] - model) > 2.0
-    if np.any(stray):
-        k0 = np.clip(np.rint(model - pol.radii[0]).astype(int), 2, K - 3)
-        cand = np.clip(k0[:, None] + np.arange(-1, 2)[None], 2, K - 3)
-        near = cand[i, np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
-        best = np.where(stray, near, best)
-    pol.model = model
-    return pol, best, closure, on_blob, gains
-
-
 def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=None,
                   min_snr=3.0, gate_px=1.0, along_sd=5.0, var_floor=2.5e-3, radius=None,
                   highpass_px=15, check=True, offset_sd=OFFSET_SD):
@@ -200,8 +128,11 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     the mirror's edge; the ring is the closed ridge through the profiles found by dynamic
     programming over azimuth (the ring is continuous: one point per azimuth, small radial
     steps between neighbours), which wall texture, lamps and glints off the ring do not
-    follow. Each point is then a Gaussian fit to five samples, its variance propagated
-    from the image noise (``docs/images.md``).
+    follow. A rail or a door frame can be such a ridge too: each circle the first pass
+    suggests gets its own path, and the ring that keeps the most azimuths wins. Each point
+    is then a Gaussian fit to five samples, its variance propagated from the image noise;
+    points off a robust local curve of the ring are looked for again near it, then flagged
+    (``docs/images.md``).
 
     Parameters
     ----------
@@ -268,51 +199,53 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         radius = tuple(float(x) for x in np.ravel(radius))
         if len(radius) != 2 or not 0 <= radius[0] < radius[1]:
             raise ValueError(f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
-    pol, k, on_blob, closure, gains, mirror = _find_ring(
-        sig, raw, sat, center, radius, n_azimuth=n_azimuth, highpass_px=highpass_px,
-        runner_up=check)
-    lp, _ = _points(sig, var_img, pol, k, on_blob, min_snr=min_snr, gate_px=gate_px,
-                    along_sd=along_sd, var_floor=var_floor, flank=background is not None)
+    cands, gains, mirror = ring_candidates(sig, raw, sat, center, radius, n_azimuth=n_azimuth,
+                                           highpass_px=highpass_px, runner_up=check)
+    lp, cand = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
+                       along_sd=along_sd, var_floor=var_floor, flank=background is not None)
     lp = replace(lp, offset_sd=offset_sd)
     if check:
         ok = ~lp.flagged
-        cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (pol.center, np.nan, None)
-        check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=closure,
+        cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
+        check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=cand.closure,
                    gains=gains)
     return lp
 
 
-def _find_ring(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_up):
-    """Two passes: 360 profiles over every radius from the mirror's centre (the runner-up's
-    gain, the ring's circle), then the final profiles about the ring's centre, in a band
-    about its radius, with a cost for straying from that circle."""
-    # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
-    blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
-                      margin=1 if sig is not raw else 3)
-    c, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
-    pol, k, closure, _, gains = _locate(sig, blobs, c, r_max, n=360, highpass_px=highpass_px,
-                                        r_band=band0, runner_up=runner_up)
-    prior = ring_prior(pol)
-    if prior is not None and np.hypot(*(prior[0] - c)) < 0.5 * prior[1]:
-        c = c if center is not None else prior[0]
-        R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
-        tol = max(PRIOR_TOL[0], PRIOR_TOL[1] * prior[2])
-    else:
-        prior, R, tol = None, 100.0, 8.0
-    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
-    band = band0
-    if prior is not None:
-        band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
-        band = band if band0 is None else (max(band[0], band0[0]), min(band[1], band0[1]))
-    r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
-    pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
-                                          r_band=band,
-                                          prior=None if center is not None else (R, tol))
-    return pol, k, on_blob, closure, gains, mirror
+def _choose(cands, sig, var_img, **kw):
+    """The candidate ring whose points the extractor trusts most: the first (the circle most
+    azimuths share), unless another ring that runs apart from it (1.5 px or more away over
+    a tenth of its azimuths or more) keeps a larger fraction of its azimuths by more than
+    :data:`CHOICE_MARGIN`."""
+    first = best = None
+    for cand in cands:
+        lp, _ = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
+        if first is None:
+            first = best = lp, cand
+            continue
+        d = np.min(np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T), axis=0)
+        if np.mean(d > 1.5) >= 0.1 and \
+                np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN:
+            best = lp, cand
+    return best
+
+
+def _rescued(sig, var_img, pol, k, on_blob, **kw):
+    """:func:`_points`, then once more where points lay off the ring's robust curve, each
+    such profile's peak looked for within 1 px of the curve (where a rail or a text bar
+    crossing the stripe took the path, the laser's own peak is often still there)."""
+    lp, gates, curve = _points(sig, var_img, pol, k, on_blob, **kw)
+    off = gates["off curve"]
+    if not off.any():
+        return lp, gates
+    near = ridge_near(pol, np.rint(np.nan_to_num(curve, nan=0.0) - pol.radii[0]).astype(int), 1)
+    lp, gates, _ = _points(sig, var_img, pol, np.where(off, near, k), on_blob, curve=curve,
+                           **kw)
+    return lp, gates
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False):
+            flank=False, curve=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
@@ -346,6 +279,12 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
+    # a run of points on another ridge (a rail, a text bar) for a few degrees moves the
+    # running median with it: a wider, robust local quadratic of the ring does not follow it
+    curve = ring_curve(pol.phi, r, ~flagged, half_deg=CURVE[0]) if curve is None else curve
+    gates["off curve"] = np.abs(np.nan_to_num(r - curve)) > np.maximum(CURVE[1] * gate_px,
+                                                                       CURVE[2] * sd_loc)
+    flagged = flagged | gates["off curve"]
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
     if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
         var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
@@ -353,7 +292,12 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
-    return lp, gates
+    return lp, gates, curve
+
+
+#: the ring's robust curve (:func:`~bayescal.image.ring.ring_curve`): half-window (deg), and
+#: its gate at max(CURVE[1] gate_px, CURVE[2] sd)
+CURVE = (30.0, 1.0, 4.0)
 
 
 #: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a

@@ -17,7 +17,8 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ring_path", "circle_fit", "ring_model", "ring_prior"]
+__all__ = ["PolarImage", "polar_image", "ridge_near", "ring_path", "circle_fit", "ring_model",
+           "ring_priors", "ring_curve"]
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -85,6 +86,14 @@ def _local_sd(x, valid, *, block=(8, 32)):
     rows = (1 - fi) * med[i0 % bn] + fi * med[(i0 + 1) % bn]
     s = (1 - fk) * rows[:, k0] + fk * rows[:, k1]
     return np.maximum(s, 1e-9 + 1e-6 * fill)
+
+
+def ridge_near(pol, k, half):
+    """Per profile, the index of the highest high-passed sample within ``half`` samples of
+    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5)."""
+    K = len(pol.radii)
+    cand = np.clip(np.asarray(k)[:, None] + np.arange(-half, half + 1)[None], 2, K - 3)
+    return cand[np.arange(len(cand)), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
 
 
 def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
@@ -203,27 +212,50 @@ def ring_model(phi, r, weights, *, order=6, keep=0.8, iters=8):
     return A @ coef, sd
 
 
-def ring_prior(pol, *, z_min=4.0, cap=8.0):
-    """Where the ring is, before any path: a circle through the strong ridge samples near
-    the radius that most azimuths share: its centre (2,), radius px and the robust sd of
-    those samples about it (px, how far the ring strays from a circle), or None.
+def ring_priors(pol, *, z_min=4.0, cap=8.0, n_max=3):
+    """Where the ring may be, before any path: circles through the strong ridge samples near
+    the radii that most azimuths share (the histogram's highest peaks, 8 px or more apart),
+    best first: each its centre (2,), radius px and the robust sd of those samples about it
+    (px, how far the ring strays from a circle). Empty when no ridge stands out.
 
     A laser ring is nearly a circle (its elevation changes little with the wall's distance,
     as the laser sits close to the mirror), while texture edges on the walls undulate
     more; a circle found this way keeps the path from following one of those for a sector
-    where it outshines the laser.
+    where it outshines the laser. A rail around the room is a circle too, and may share
+    more azimuths than a faint ring: the extractor weighs each circle's ring by its points.
     """
     sc = pol.score
     peak = (sc > z_min) & (sc >= np.roll(sc, 1, axis=1)) & (sc >= np.roll(sc, -1, axis=1))
     ii, kk = np.nonzero(peak)
     if len(ii) < 12:
-        return None
+        return []
     w = np.minimum(sc[ii, kk], cap)
     hist = np.convolve(np.bincount(kk, weights=w, minlength=len(pol.radii)), np.ones(7), "same")
-    R0 = pol.radii[int(np.argmax(hist))]
     r = pol.radii[kk]
     pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi[ii]), np.sin(pol.phi[ii])], -1)
-    near = np.abs(r - R0) <= max(8.0, 0.1 * R0)
+    out, top = [], hist.max()
+    for _ in range(n_max):
+        j = int(np.argmax(hist))
+        if not hist[j] > 0.25 * top:
+            break
+        hist[max(0, j - 5):j + 6] = 0.0
+        # the first circle may stray from the profiles' centre (a window of 8 px or 10 %);
+        # each is also looked for closer to its radius (4 px or 5 %), so that a ridge
+        # beside it (a rail 6-30 px away) does not take its fit
+        for wide in ((True, False) if not out else (False,)):
+            circle = _circle_near(pts, w, pol.radii[j], r, wide=wide)
+            if circle is not None and all(abs(circle[1] - o[1]) > 3.0 for o in out):
+                out.append(circle)
+    return out
+
+
+def _circle_near(pts, w, R0, r, *, wide=True):
+    """A robust circle through the ridge samples ``pts`` (weights ``w``, radii ``r`` about
+    the profiles' centre) near radius ``R0``: the samples within 8 px or 10 % of it, then
+    within 5 px or 6 % of the fitted circle; unless ``wide``, 4 px or 5 %, then 4 px or 3 %
+    (a ring of 345 px with a rail 20-30 px outside it: the wide window fitted both).
+    Returns (centre, radius, robust sd) or None."""
+    near = np.abs(r - R0) <= (max(8.0, 0.1 * R0) if wide else max(4.0, 0.05 * R0))
     for _ in range(2):
         if np.count_nonzero(near) < 12:
             return None
@@ -231,7 +263,50 @@ def ring_prior(pol, *, z_min=4.0, cap=8.0):
         if not np.isfinite(R):
             return None
         res = np.hypot(*(pts - c).T) - R
-        near = np.abs(res) <= max(5.0, 0.06 * R)
+        near = np.abs(res) <= (max(5.0, 0.06 * R) if wide else max(4.0, 0.03 * R))
     if np.count_nonzero(near) < 12:
         return None
     return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))
+
+
+def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
+    """A robust local quadratic of the ring's radius over azimuth: at each profile, a
+    tricube-weighted quadratic in the azimuth over ``half_deg`` degrees either side,
+    through the ``valid`` radii, refitted with Tukey's biweight on its residuals (so that a
+    run of points on another ridge, a rail or a text bar for a few degrees, does not bend
+    it). Wider than the running median's window, it sees such a run as off the ring;
+    quadratic, it follows the ring's slope and bend between a room's corners.
+
+    Parameters
+    ----------
+    phi, r : ndarray, shape (n,)
+        Azimuths (rad, evenly spaced) and radii (px) of the profiles' points.
+    valid : ndarray of bool, shape (n,)
+        Points that may carry the curve.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The curve's radius at each profile, px (NaN where no valid point is near).
+    """
+    n = len(phi)
+    half = max(3, int(round(half_deg / 360.0 * n)))
+    off = np.arange(-half, half + 1)
+    idx = (np.arange(n)[:, None] + off[None]) % n
+    x = off / half
+    X = np.stack([np.ones_like(x), x, x ** 2], -1)               # (m, 3)
+    ok = valid & np.isfinite(r)
+    y = np.where(ok, r, 0.0)[idx]
+    tri = (1 - np.abs(x) ** 3)[None] ** 3 * ok[idx]
+    w = tri
+    coef = np.full((n, 3), np.nan)
+    for t in range(iters):
+        A = np.einsum("nm,mp,mq->npq", w, X, X) + 1e-9 * np.eye(3)
+        coef = np.linalg.solve(A, np.einsum("nm,mp,nm->np", w, X, y)[..., None])[..., 0]
+        res = y - coef @ X.T
+        s = 1.4826 * float(np.median(np.abs(r[ok] - coef[ok, 0]))) if ok.any() else 1.0
+        # the scale shrinks from 1 px over the refits: a fit first pulled by a run off the
+        # ring is not locked there by a scale already small
+        u = res / (4.685 * max(s, 0.1, 2.0 ** -t))
+        w = tri * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    return np.where(tri.sum(1) > 3, coef[:, 0], np.nan)

@@ -144,3 +144,20 @@ def test_offset_sd_is_reported_and_checked():
     assert bc.extract_laser(img, background=truth.background, offset_sd=0.0).offset_sd == 0.0
     with pytest.raises(ValueError, match="offset_sd"):
         bc.extract_laser(img, offset_sd=-0.1)
+
+
+def test_ring_curve_follows_the_ring_not_a_run_on_another_ridge():
+    # a smooth ring with a bend, and a run of 8 profiles (8 deg) 2.5 px off it: the robust
+    # local quadratic stays on the ring there (an 11-profile running median moves to it)
+    from bayescal.image.ring import ring_curve
+
+    phi = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    ring = 90.0 + 3.0 * np.sin(2 * phi) + 1.5 * np.cos(3 * phi)
+    r = ring + np.random.default_rng(0).normal(0, 0.1, 360)
+    r[100:108] += 2.5
+    curve = ring_curve(phi, r, np.ones(360, bool))
+    assert np.max(np.abs(curve - ring)) < 0.15
+    valid = np.ones(360, bool)
+    valid[200:216] = False          # a 16-deg gap (a lamp): the curve bridges it (measured
+    # 0.05 px off; 0.21 px over a 30-deg gap, where the quadratic's reach ends)
+    assert np.max(np.abs(ring_curve(phi, r, valid)[200:216] - ring[200:216])) < 0.15

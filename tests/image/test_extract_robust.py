@@ -181,9 +181,9 @@ def test_r2_textured_walls_with_laser_off_image(r2_textured):
 
 
 def test_r2_textured_walls_without_laser_off_image(r2_textured):
-    # measured: kept 0.95, robust sd 0.19, bias -0.05, z rms 1.07 (1.31 before the clutter
-    # variance); gross 2.9 % misses its target (a rail and poster edges crossing the stripe;
-    # docs/images.md): asserted apart
+    # measured: kept 0.95, robust sd 0.19, bias -0.05, z rms 1.11 (1.31 before the clutter
+    # variance); gross 2.6 % (2.9 % before the off-curve gate) misses its target (a rail and
+    # poster edges crossing the stripe; docs/images.md): asserted apart
     img, _, truth = r2_textured
     res = targets(*r2_errors(bc.extract_laser(img), truth), max_rsd=0.25)
     assert res["kept"] and res["robust sd"] and res["bias"] and res["z rms"]
@@ -234,3 +234,33 @@ def test_r2_no_ring_without_laser_off_image_is_an_error():
     img, _, _ = render2(P, range_mm=2500, laser=False, rng=3)
     with pytest.raises(bc.ExtractionError):
         bc.extract_laser(img)
+
+
+def test_r2_tilted_cone_beside_a_rail_without_laser_off_image():
+    # a tilted cone crosses renderer2's rail twice; the first circle (the radius most
+    # azimuths share) gave a path that followed the rail between the crossings (gross
+    # 24.6 % on this image before candidate rings were compared). Measured: kept 0.93,
+    # robust sd 0.18, bias -0.007, gross 0.6 %, z rms 1.01
+    pose = bc.LaserPose(tilt_x=np.deg2rad(2.0), tilt_y=np.deg2rad(-1.5), offset_x=10.0,
+                        offset_y=-5.0)
+    img, _, truth = render2(P, range_mm=2500, laser_pose=pose, rng=5)
+    assert_targets(targets(*r2_errors(bc.extract_laser(img), truth), max_rsd=0.25))
+
+
+def test_r2_camera_1280_ring_beside_a_rail_without_laser_off_image():
+    # renderer2's 1280x1024 camera scenario: a ring of 345 px with a rail 20-30 px outside
+    # it. The first circle, fitted to the ridge samples within 10 % of the radius, took both
+    # (sd 14.6 px) and the path followed the rail (robust sd 17.6 px, gross 71 %); the narrow
+    # candidate circle finds the ring. Measured: robust sd 0.19, bias -0.02, gross 1.0 %,
+    # z rms 1.30; kept 0.86 of the sampled azimuths, as with the laser-off image (lamps and
+    # a faint sector: docs/images.md), so kept is not asserted here
+    from renderer2 import render_scenario
+
+    img, _, truth = render_scenario("cam1280", rng=0)
+    lp = bc.extract_laser(img)
+    s = score_extraction(lp.pixels, truth, flagged=lp.flagged, n_bins=len(lp))
+    e = s["errors"]
+    good = np.isfinite(e) & (np.abs(e) <= 1.0)
+    sd = lp.sd_normal[~lp.flagged]
+    assert s["robust_sd"] <= 0.25 and abs(s["bias"]) <= 0.1 and s["gross"] <= 0.02
+    assert 0.7 <= np.sqrt(np.mean((e[good] / sd[good]) ** 2)) <= 1.4

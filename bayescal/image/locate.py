@@ -1,0 +1,181 @@
+"""Where the laser ring runs: a first pass over every radius, the circles it suggests, and
+the ring's path about each of them (:func:`ring_candidates`).
+
+A rail around the room, a door frame or a poster's edge can be a thin closed ridge as bright
+as a faint laser ring, and the radius most azimuths share may be theirs. So the first pass
+offers up to three circles (the histogram's two highest peaks and the best closed path off
+the first one's ring), each followed by a constrained path; the extractor keeps the ring
+whose points it trusts most (:func:`bayescal.image.extract.extract_laser`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .doubt import blob_mask, dark_core, mirror_disc
+from .ring import circle_fit, polar_image, ridge_near, ring_model, ring_path, ring_priors
+
+__all__ = ["RingCandidate", "ring_candidates", "PRIOR_TOL", "PRIOR_SLOPE"]
+
+#: the path's cost for straying from the ring's circle: free within max(PRIOR_TOL[0] px,
+#: PRIOR_TOL[1] x the ridge's sd about the circle), then PRIOR_SLOPE sds per px
+PRIOR_TOL = (3.0, 4.0)
+PRIOR_SLOPE = 1.0
+
+
+def _start(sig, raw, sat, center, radius, highpass_px):
+    """Centre of the first profiles, the search's outer radius and the mirror's disc."""
+    mirror = mirror_disc(raw)
+    H, W = raw.shape
+    if center is not None:
+        c = np.asarray(center, dtype=float)
+    elif mirror is not None:
+        c = mirror[0]
+    else:
+        c = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
+    corners = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
+    r_max = float(np.max(np.hypot(*(corners - c).T)))
+    band = radius
+    if mirror is not None:          # the mirror's rim is a circle too: stay inside it
+        r_max = min(r_max, mirror[1] - max(8.0, 0.05 * mirror[1]))
+    # the ring lies outside the camera's own dark reflection (its edge is a circle too)
+    core = dark_core(raw, c, mirror[1] if mirror is not None else 0.5 * min(H, W))
+    if core > 0:                    # past the high-pass's reach from its edge
+        lo = core + 0.5 * highpass_px + 2.0
+        band = (lo, r_max) if radius is None else (max(radius[0], lo), radius[1])
+    if radius is not None:
+        r_max = min(r_max, float(radius[1]) + 8.0)
+    return c, r_max, mirror, band
+
+
+def _score_without_blobs(pol, blobs):
+    """Zero the ridge score on saturated blobs: a lamp neither attracts nor repels the path."""
+    u = pol.center[0] + np.cos(pol.phi)[:, None] * pol.radii[None]
+    v = pol.center[1] + np.sin(pol.phi)[:, None] * pol.radii[None]
+    H, W = blobs.shape
+    on = blobs[np.clip(np.rint(v).astype(int), 0, H - 1), np.clip(np.rint(u).astype(int), 0, W - 1)]
+    pol.score[on] = 0.0
+    return on
+
+
+def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False,
+            prior=None):
+    """Polar image around ``c``, the ring's path in it (radius index per azimuth), its
+    closure, the blob mask in polar coordinates, and the path's gain and (``runner_up``)
+    that of the best closed path 8 px or more off it."""
+    r_min = 0.0 if r_band is None else r_band[0] - highpass_px
+    pol = polar_image(sig, c, n_azimuth=n, r_max=r_max, highpass_px=highpass_px, r_min=r_min)
+    if r_band is not None:
+        pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
+    on_blob = _score_without_blobs(pol, blobs)
+    free = pol.score
+    if prior is not None:
+        # the ring is nearly a circle about ``c`` (radius, tolerance px): a cost for
+        # straying farther from it, PRIOR_SLOPE noise sds per azimuth per px
+        far = np.maximum(np.abs(pol.radii - prior[0]) - prior[1], 0.0)
+        pol.score = pol.score - PRIOR_SLOPE * far[None, :]
+    pol.free = free
+    path, closure, gain = ring_path(pol.score)
+    gains = (gain, np.nan)
+    if runner_up:
+        off = pol.score.copy()
+        off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
+        gains = (gain, ring_path(off)[2])
+    # the highest ridge sample within 2 px of the path (the path moves in whole steps)
+    best = ridge_near(pol, path, 2)
+    # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
+    # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
+    z = pol.score[np.arange(n), path]
+    model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
+    stray = np.abs(pol.radii[best] - model) > 2.0
+    if np.any(stray):
+        near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
+        best = np.where(stray, near, best)
+    pol.model = model
+    return pol, best, closure, on_blob, gains
+
+
+class RingCandidate:
+    """One ring the image may hold: its polar image ``pol`` (with ``pol.model``, the robust
+    Fourier model of its path), the peak sample's radius index per azimuth ``k`` (n,), the
+    saturated-blob mask ``on_blob`` (n, K) and the path's ``closure`` (px)."""
+
+    def __init__(self, pol, k, closure, on_blob):
+        self.pol, self.k, self.closure, self.on_blob = pol, k, closure, on_blob
+
+
+def ring_candidates(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, runner_up):
+    """The rings the image may hold, best guess first, the first pass's gains and the
+    mirror's disc.
+
+    Two passes: 360 profiles over every radius from the mirror's centre (the runner-up's
+    gain, the circles that most azimuths share), then, per circle, the final profiles about
+    its centre, in a band about its radius, with a cost for straying from it; a third
+    circle is the best closed path 4 px or more off the first ring (a faint ring beside a
+    rail that the histogram merges with it).
+
+    Returns
+    -------
+    candidates : list of RingCandidate
+    gains : tuple of float
+        Mean ridge score per azimuth of the first pass's path and of the best closed path
+        8 px or more off it.
+    mirror : tuple or None
+        ``(centre, radius)`` of the mirror's image, px.
+    """
+    # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
+    blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
+                      margin=1 if sig is not raw else 3)
+    c0, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
+    pol, _, _, _, gains = _locate(sig, blobs, c0, r_max, n=360, highpass_px=highpass_px,
+                                  r_band=band0, runner_up=runner_up)
+    priors = [p for p in ring_priors(pol) if np.hypot(*(p[0] - c0)) < 0.5 * p[1]]
+    args = dict(c0=c0, r_max=r_max, band0=band0, center=center, n_azimuth=n_azimuth,
+                highpass_px=highpass_px)
+    if not priors:
+        return [_second_pass(sig, blobs, None, **args)], gains, mirror
+    out = [_second_pass(sig, blobs, p, **args) for p in priors]
+    other = _beside(out[0])
+    if other is not None and all(np.hypot(*(other[0] - p[0])) + abs(other[1] - p[1]) > 3.0
+                                 for p in priors):
+        out.append(_second_pass(sig, blobs, other, **args))
+    return out, gains, mirror
+
+
+def _beside(cand, *, gap=4.0, z_min=3.0):
+    """The circle (centre, radius, sd) of the best closed path ``gap`` px or more off a
+    candidate's ring, through its samples scoring ``z_min`` or more; None if too few."""
+    pol = cand.pol
+    off = pol.free.copy()
+    off[np.abs(pol.radii[None, :] - pol.radii[cand.k][:, None]) < gap] = 0.0
+    path = ring_path(off)[0]
+    z = off[np.arange(len(path)), path]
+    if np.count_nonzero(z >= z_min) < 0.25 * len(path):
+        return None
+    r = pol.radii[path]
+    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
+    c, R, res = circle_fit(pts[z >= z_min])
+    if not np.isfinite(R):
+        return None
+    return c, R, 1.4826 * float(np.median(np.abs(res - np.median(res))))
+
+
+def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, highpass_px):
+    """The final profiles about a circle ``prior`` (centre, radius, sd; None: about ``c0``
+    over the whole band) and the ring's path through them."""
+    if prior is not None:
+        c = c0 if center is not None else prior[0]
+        R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
+        tol = max(PRIOR_TOL[0], PRIOR_TOL[1] * prior[2])
+    else:
+        c, R, tol = c0, 100.0, 8.0
+    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
+    band = band0
+    if prior is not None:
+        band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
+        band = band if band0 is None else (max(band[0], band0[0]), min(band[1], band0[1]))
+    r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
+    pol, k, closure, on_blob, _ = _locate(sig, blobs, c, r_max, n=n, highpass_px=highpass_px,
+                                          r_band=band,
+                                          prior=None if center is not None else (R, tol))
+    return RingCandidate(pol, k, closure, on_blob)
