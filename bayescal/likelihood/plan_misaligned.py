@@ -44,9 +44,16 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     #: production shares of the sampler's HMC and independence moves, and the HMC
     #: trajectory (whitened units): more and longer HMC than the sampler's defaults (0.3,
     #: 0.6, 1.5), because this posterior is far from Gaussian along the tilt, the principal
-    #: point and a shift of the walls (``docs/floorplan.md`` section 13)
+    #: point and a shift of the walls; trajectories of 3 mixed faster by the estimated tau
+    #: but their ESS failed the seed-scatter check (``docs/floorplan.md`` section 13)
     move_weights = (0.45, 0.55)
     hmc_path = 2.0
+    #: steps per tuning round (the sampler's default with a gradient: 60): the mass matrix
+    #: and the independence proposal are fitted from the tuning rounds' draws, and 60 steps
+    #: at tau ~10 leave ~100 independent draws for a 24 x 24 covariance; 150 took the first
+    #: benchmark plan's chain from max tau 17.6 (stopped by its budget, not converged) to 7.7
+    #: (converged in 524 steps), ``docs/floorplan.md`` section 13
+    tune_steps = 150
     #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`):
     #: max tau 31 -> 6.9 here (150 points; the walls as they are, not net of the pose);
     #: the per-point posterior, nearly Gaussian, gains nothing from it (measured,

@@ -170,11 +170,16 @@ class Coordinates:
         this map), and all but those five leave ``k`` as it is (same floats), so most
         rows repeat (half the gradient's cost before)."""
         flat = psi.reshape(-1, psi.shape[-1])
+        k = self._pose_k(flat)
+        return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
+
+    def _pose_k(self, flat):
+        """:func:`pose_shift` (n, 2, 4) of the rows of ``flat`` (n, d), once per distinct
+        ``(xi, gamma, h, beta)``."""
         keys, inverse = np.unique(flat[:, _POSE_SHIFT_READS], axis=0, return_inverse=True)
         rows = np.zeros((len(keys), 11))
         rows[:, _POSE_SHIFT_READS] = keys
-        k = pose_shift(rows, self.rho_ref)[inverse.ravel()]
-        return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
+        return pose_shift(rows, self.rho_ref)[inverse.ravel()]
 
     def to_sampling(self, psi):
         """psi (..., d) -> s (..., d)."""
@@ -203,6 +208,36 @@ class Coordinates:
             with np.errstate(invalid="ignore", divide="ignore"):
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
         return psi
+
+    def inverse_jacobian(self, s, eps=1e-6):
+        """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
+        psi_j / d s_k``.
+
+        Only ``xi``, the ring radii, ``H`` and ``beta`` (entries 0, 1, 2, 5, 6) move other
+        entries of psi through the scales and the pose's ``k``: their columns are central
+        differences (10 shifted copies of every row, step ``eps * max(1, |s|)``). The rest
+        is closed-form: the identity, ``-k`` from the pose to ``(u0, v0)`` and the outlier
+        fraction's ``d logit(y^3) / dy = 3 / (y (1 - y^3))``.
+        """
+        s = np.atleast_2d(np.asarray(s, float))
+        W, d = s.shape
+        psi = self.from_sampling(s)
+        J = np.broadcast_to(np.eye(d), (W, d, d)).copy()
+        mixed = np.array([0, 1, 2, 5, 6])
+        h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, 5)
+        E = np.zeros((len(mixed), W, d))
+        E[np.arange(len(mixed)), :, mixed] = h.T
+        with np.errstate(invalid="ignore"):
+            J[:, mixed, :] = np.moveaxis(
+                (self.from_sampling(s[None] + E) - self.from_sampling(s[None] - E))
+                / (2.0 * h.T[..., None]), 0, 1)
+            if self.pose:
+                J[:, 7:11, 3:5] = -np.swapaxes(self._pose_k(psi), -1, -2)
+            f = self.frac_index
+            if f is not None:
+                y = s[:, f]
+                J[:, f, f] = np.where((y > 0) & (y < 1), 3.0 / (y * (1.0 - y**3)), np.nan)
+        return psi, J
 
     def log_jacobian(self, psi):
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""

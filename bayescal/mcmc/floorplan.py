@@ -62,7 +62,9 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
     progress, on_unconverged, n_point_mh, n_iter, camera :
         As in :func:`bayescal.sample_posterior`.
     n_tune : int, optional
-        Steps per round of the proposal tuning (default: the sampler's).
+        Steps per round of the proposal tuning (default: the likelihood's
+        ``tune_steps`` where it has one, 150 with ``model="misaligned"``, else the
+        sampler's).
     sigma_scene : not accepted
         The plan carries its own sds; giving it is a ``TypeError``.
     outliers, outlier_scale, outlier_prior :
@@ -112,6 +114,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                                                       outlier_prior=outlier_prior,
                                                       pixel_cov=pixel_cov, model=model)
     lik = map_res.extras.pop("likelihood")
+    if n_tune is None:                  # the likelihood's own tuning length, if it has one
+        n_tune = getattr(lik, "tune_steps", None)
     run = sample_collapsed(lik, prior, psi_map, cov_map, q_map, rng=rng, n_walkers=n_walkers,
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,

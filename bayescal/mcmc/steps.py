@@ -141,42 +141,46 @@ class CollapsedTarget:
         """Whether the likelihood offers ``grad_log_marginal`` (else gradient moves are off)."""
         return callable(getattr(self.lik, "grad_log_marginal", None))
 
-    def _log_prior_s(self, s):
-        """Log prior of psi plus the log Jacobian, as a function of ``s`` (..., d)."""
-        psi = self.coords.from_sampling(s)
+    def _grad_log_prior_psi(self, psi, eps):
+        """Gradient (W, d) in psi of the log prior plus the log Jacobian, central
+        differences: theta's prior over theta's 7 entries only, the extras' (cheap) over
+        theirs, the log Jacobian over all."""
+        W, d = psi.shape
+        h = eps * np.maximum(1.0, np.abs(psi))                     # (W, d)
+        E = np.eye(d)[:, None, :] * h[None]                        # (d, W, d)
+        up, dn = psi[None] + E, psi[None] - E
         with np.errstate(invalid="ignore", divide="ignore"):
-            return self.log_prior(psi) + self.coords.log_jacobian(psi)
+            diff = self.coords.log_jacobian(up) - self.coords.log_jacobian(dn)     # (d, W)
+            diff[:7] += self.prior.logpdf_theta(up[:7, :, :7]) \
+                - self.prior.logpdf_theta(dn[:7, :, :7])
+            diff[7:] += self.lik.log_prior_extra(up[7:, :, 7:]) \
+                - self.lik.log_prior_extra(dn[7:, :, 7:])
+        return diff.T / (2.0 * h)
 
     def value_and_grad(self, s, eps=1e-6):
         """Log density (W,) and its gradient (W, d) in sampling coordinates.
 
-        The likelihood part is analytic (``lik.grad_log_marginal``), chained
-        through ``d psi / d s``; the prior and the change-of-variables term
-        (cheap) by central differences, all walkers and directions in one call.
-        The value is exactly :meth:`__call__`'s. NaN gradient where the value is
-        ``-inf``.
+        The likelihood part is analytic (``lik.grad_log_marginal``); the prior and the
+        change-of-variables term (cheap) by central differences in psi
+        (:meth:`_grad_log_prior_psi`); both chained through ``d psi / d s``
+        (:meth:`~bayescal.mcmc.coordinates.Coordinates.inverse_jacobian`). The value is
+        exactly :meth:`__call__`'s. NaN gradient where the value is ``-inf``.
         """
         s = np.atleast_2d(np.asarray(s, float))
         W, d = s.shape
         self.n_calls += W
         self.n_grad_calls += W
-        h = eps * np.maximum(1.0, np.abs(s))                      # (W, d)
-        E = np.eye(d)[:, None, :] * h[None]                       # (d, W, d)
-        sp = np.concatenate([s[None] + E, s[None] - E])           # (2d, W, d)
-        with np.errstate(invalid="ignore"):
-            g_prior = ((self._log_prior_s(sp[:d]) - self._log_prior_s(sp[d:])).T / (2 * h))
-            dpsi = ((self.coords.from_sampling(sp[:d]) - self.coords.from_sampling(sp[d:]))
-                    / (2 * h.T[..., None]))
-        lp = self._log_prior_s(s)
-        psi = self.coords.from_sampling(s)
+        psi, dpsi = self.coords.inverse_jacobian(s)               # dpsi[w, k, j] = d psi_j / d s_k
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lp = self.log_prior(psi) + self.coords.log_jacobian(psi)
         out = np.full(W, -np.inf)
         grad = np.full((W, d), np.nan)
         ok = np.isfinite(lp)
         if np.any(ok):
             ll, g_psi = self.lik.grad_log_marginal(psi[ok], self.q_start, n_iter=self.n_iter)
             out[ok] = lp[ok] + ll
-            # dpsi[k, w, j] = d psi_j / d s_k
-            grad[ok] = g_prior[ok] + np.einsum("kwj,wj->wk", dpsi[:, ok], g_psi)
+            g_psi = g_psi + self._grad_log_prior_psi(psi[ok], eps)
+            grad[ok] = np.einsum("wkj,wj->wk", dpsi[ok], g_psi)
         bad = ~np.isfinite(out)
         out[bad] = -np.inf
         grad[bad] = np.nan
