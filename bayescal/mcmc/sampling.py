@@ -121,7 +121,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         fitted independence proposal mixed with differential evolution).
     n_tune : int, optional
         Steps per round of the proposal and step-size tuning (3 rounds, discarded;
-        default 60, or 150 for a likelihood without a gradient).
+        default 60, or 150 for a likelihood without a gradient and for a misaligned
+        floor plan, whose mass matrix is fitted to 24 coordinates).
     progress : bool, optional
         Show a progress bar.
     on_unconverged : {"warn", "raise"}
