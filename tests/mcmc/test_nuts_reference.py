@@ -62,10 +62,13 @@ def _reference(ds, kw, **extra):
 
 
 def _posterior(ds, kw, sigma_scene, **extra):
-    """bayescal's posterior at the test's ESS target, every kept draw returned."""
+    """bayescal's posterior at the test's ESS target, every kept draw returned, without the
+    outlier mixture (the reference has none): with it, point 238 of the 1000-mm scene sat
+    2.0-2.8 NUTS sd off and the points' rms was 0.075-0.127 over 8 sampler seeds (0.022-0.043
+    without; the globals moved by at most 0.025 sd)."""
     post = bc.sample_posterior(ds.pixels, ds.approx_points, sigma_px=kw["sigma_px"],
                                sigma_scene=sigma_scene, prior=bc.Prior(), rng=1, progress=False,
-                               min_ess=BC_MIN_ESS, n_samples=BC_DRAWS, **extra)
+                               min_ess=BC_MIN_ESS, n_samples=BC_DRAWS, outliers=False, **extra)
     assert post.converged, "bayescal's chain missed its stopping rule"
     return post
 
@@ -89,6 +92,7 @@ def _compare(t_ref, t_bc, names, p_ref, p_bc):
     # normals with standard error 0.044 sd reaches ~0.14 by chance)
     d_pts = (p_bc.mean(axis=0) - p_ref.mean(axis=0)) / p_ref.std(axis=0)
     rms = np.sqrt(np.mean(d_pts ** 2))
+    print(f"points: rms {rms:.3f}, max {np.max(np.abs(d_pts)):.3f} NUTS sd")
     assert rms < 0.1, f"RMS point mean difference {rms:.3f} NUTS sd"
 
 
