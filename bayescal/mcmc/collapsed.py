@@ -103,10 +103,17 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
 
 
 def _thin(chain, burn, n_samples):
-    """``n_samples`` states thinned evenly from the kept chain (steps, walkers, d)."""
-    flat = chain[burn:].reshape(-1, chain.shape[-1])
-    if len(flat) == 0:
-        flat = chain[-1]
+    """``n_samples`` states thinned evenly from the kept chain (steps, walkers, d).
+
+    Walker by walker: each walker's kept states in turn, evenly spaced along it. The
+    walkers' independence moves make them nearly independent of one another while a
+    walker's successive states are correlated, so dropping states along each walker
+    loses less than dropping walkers within a step (the step-major order did that: at
+    ~1.8 states per returned sample the returned means scattered over sampler seeds
+    like an ESS ~0.5x the chain's, docs/validation.md rung 3b).
+    """
+    kept = chain[burn:] if len(chain) > burn else chain[-1:]
+    flat = np.swapaxes(kept, 0, 1).reshape(-1, chain.shape[-1])
     idx = np.linspace(0, len(flat) - 1, min(int(n_samples), len(flat))).round().astype(int)
     return flat[idx]
 

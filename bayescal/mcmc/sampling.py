@@ -113,7 +113,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         ``max_steps``. The same with a :class:`~bayescal.FloorPlan`.
     n_samples : int, optional
         Number of joint samples (parameters and points) kept, thinned evenly
-        from the converged chain.
+        along each walker of the converged chain. The ESS reported is the chain's:
+        fewer samples than its kept states carry somewhat less (at 2000 of ~3600,
+        0.006-0.011 sd more error per mean, ``docs/validation.md`` rung 3b); ask for
+        at least ``n_walkers * (n_steps - burn)`` to keep them all.
     init : SensorParams, optional
         Start of the MAP search (default the prior means).
     moves : list, optional
