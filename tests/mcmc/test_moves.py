@@ -179,3 +179,25 @@ def test_hmc_move_rejects_bad_arguments():
         HMCMove(_normal_value_and_grad, np.eye(2), step_size=0.0)
     with pytest.raises(ValueError, match="n_steps must be a positive integer"):
         HMCMove(_normal_value_and_grad, np.eye(2), n_steps=0)
+
+
+def test_thinning_keeps_every_walker_evenly():
+    # 100 kept steps x 18 walkers thinned to 1000 draws (~1.8 states per draw): each
+    # walker gives 55-56 draws spread over its whole run. The step-major order kept the
+    # same half of the walkers over long stretches (their means then scattered like an ESS
+    # of about half the chain's).
+    from bayescal.mcmc.collapsed import _thin
+
+    steps, walkers, burn = 120, 18, 20
+    chain = np.zeros((steps, walkers, 2))
+    chain[..., 0] = np.arange(walkers)[None, :]              # which walker
+    chain[..., 1] = np.arange(steps)[:, None]                # which step
+    out = _thin(chain, burn, 1000)
+    assert out.shape == (1000, 2)
+    counts = np.bincount(out[:, 0].astype(int), minlength=walkers)
+    assert counts.min() >= 55 and counts.max() <= 56, counts
+    for w in range(walkers):
+        s = out[out[:, 0] == w, 1]
+        assert s.min() <= burn + 2 and s.max() >= steps - 3, (w, s.min(), s.max())
+    # a chain shorter than its burn-in returns the last state of each walker
+    np.testing.assert_array_equal(_thin(chain[:10], burn, 5)[:, 1], 9)
