@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import uniform_filter
 
+from .ring import local_quadratic
+
 __all__ = ["noise_model", "ring_scatter_scale"]
 
 
@@ -93,10 +95,8 @@ def ring_scatter_scale(r, var, ok, *, shared_px=3.5):
     idx = (np.arange(n)[:, None] + offs[None]) % n
     X = np.stack([np.ones(len(offs)), offs, offs ** 2], axis=1).astype(float)
     w = (ok[idx] & (np.abs(offs) > gap)[None]).astype(float)
-    XtW = X.T[None] * w[:, None, :]
-    A = XtW @ X[None] + 1e-9 * np.eye(3)
-    pred = np.linalg.solve(A, XtW @ np.where(ok, r, 0.0)[idx][..., None])[:, 0, 0]
-    miss = r - pred
+    coef, A = local_quadratic(w, X, np.where(ok, r, 0.0)[idx])
+    miss = r - coef[:, 0]
     good = ok & (np.sum(w, axis=1) >= 6) & (np.abs(miss) < 3.0)
     if good.sum() < 10:
         return 1.0

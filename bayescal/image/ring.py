@@ -269,6 +269,17 @@ def _circle_near(pts, w, R0, r, *, wide=True):
     return c, R, 1.4826 * float(np.median(np.abs(res[near] - np.median(res[near]))))
 
 
+def local_quadratic(w, X, y):
+    """Weighted least-squares quadratics, one per window of a closed sequence.
+
+    ``w``, ``y``: shape (n, m), the weights and values at the m offsets of each of the n
+    windows; ``X``: shape (m, 3), the design ``[1, x, x^2]`` at those offsets. Returns the
+    coefficients, shape (n, 3), and the normal matrices ``X^T W X``, shape (n, 3, 3)
+    (shared by :func:`ring_curve` and :func:`~bayescal.image.noise.ring_scatter_scale`)."""
+    A = np.einsum("nm,mp,mq->npq", w, X, X) + 1e-9 * np.eye(3)
+    return np.linalg.solve(A, np.einsum("nm,mp,nm->np", w, X, y)[..., None])[..., 0], A
+
+
 def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
     """A robust local quadratic of the ring's radius over azimuth: at each profile, a
     tricube-weighted quadratic in the azimuth over ``half_deg`` degrees either side,
@@ -301,8 +312,7 @@ def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
     w = tri
     coef = np.full((n, 3), np.nan)
     for t in range(iters):
-        A = np.einsum("nm,mp,mq->npq", w, X, X) + 1e-9 * np.eye(3)
-        coef = np.linalg.solve(A, np.einsum("nm,mp,nm->np", w, X, y)[..., None])[..., 0]
+        coef, _ = local_quadratic(w, X, y)
         res = y - coef @ X.T
         s = 1.4826 * float(np.median(np.abs(r[ok] - coef[ok, 0]))) if ok.any() else 1.0
         # the scale shrinks from 1 px over the refits: a fit first pulled by a run off the
