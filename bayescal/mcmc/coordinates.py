@@ -169,9 +169,14 @@ class Coordinates:
         gradient moves each coordinate in turn (central differences of the prior through
         this map), and all but those five leave ``k`` as it is (same floats), so most
         rows repeat (half the gradient's cost before)."""
+        return self._shift_k(psi)[0]
+
+    def _shift_k(self, psi):
+        """:meth:`_shift` and the pose's ``k`` (..., 2, 4) it used."""
         flat = psi.reshape(-1, psi.shape[-1])
         k = self._pose_k(flat)
-        return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
+        shift = np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
+        return shift, k.reshape(psi.shape[:-1] + (2, 4))
 
     def _pose_k(self, flat):
         """:func:`pose_shift` (n, 2, 4) of the rows of ``flat`` (n, d), once per distinct
@@ -196,18 +201,25 @@ class Coordinates:
 
     def from_sampling(self, s):
         """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
+        return self._from_sampling(s)[0]
+
+    def _from_sampling(self, s):
+        """:meth:`from_sampling` and the pose's ``k`` (..., 2, 4) at the result (None
+        without the pose)."""
         psi = np.array(s, dtype=float)
         psi[..., 5] /= self._scales(psi)[1]
         k = self._scales(psi)[0]
         psi[..., 1] /= k
         psi[..., 2] /= k
+        pose_k = None
         if self.pose:
-            psi[..., 3:5] -= self._shift(psi)
+            shift, pose_k = self._shift_k(psi)
+            psi[..., 3:5] -= shift
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
-        return psi
+        return psi, pose_k
 
     def inverse_jacobian(self, s, eps=1e-6):
         """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
@@ -215,24 +227,27 @@ class Coordinates:
 
         Only ``xi``, the ring radii, ``H`` and ``beta`` (entries 0, 1, 2, 5, 6) move other
         entries of psi through the scales and the pose's ``k``: their columns are central
-        differences (10 shifted copies of every row, step ``eps * max(1, |s|)``). The rest
-        is closed-form: the identity, ``-k`` from the pose to ``(u0, v0)`` and the outlier
-        fraction's ``d logit(y^3) / dy = 3 / (y (1 - y^3))``.
+        differences (10 shifted copies of every row, step ``eps * max(1, |s|)``, mapped in
+        one call with the rows themselves). The rest is closed-form: the identity, ``-k``
+        from the pose to ``(u0, v0)`` and the outlier fraction's ``d logit(y^3) / dy = 3 /
+        (y (1 - y^3))``.
         """
         s = np.atleast_2d(np.asarray(s, float))
         W, d = s.shape
-        psi = self.from_sampling(s)
         J = np.broadcast_to(np.eye(d), (W, d, d)).copy()
         mixed = np.array([0, 1, 2, 5, 6])
+        m = len(mixed)
         h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, 5)
-        E = np.zeros((len(mixed), W, d))
-        E[np.arange(len(mixed)), :, mixed] = h.T
+        E = np.zeros((m, W, d))
+        E[np.arange(m), :, mixed] = h.T
         with np.errstate(invalid="ignore"):
-            J[:, mixed, :] = np.moveaxis(
-                (self.from_sampling(s[None] + E) - self.from_sampling(s[None] - E))
-                / (2.0 * h.T[..., None]), 0, 1)
+            out, pose_k = self._from_sampling(np.concatenate([s[None], s[None] + E,
+                                                              s[None] - E]))
+            psi = out[0]
+            J[:, mixed, :] = np.moveaxis((out[1:m + 1] - out[m + 1:]) / (2.0 * h.T[..., None]),
+                                         0, 1)
             if self.pose:
-                J[:, 7:11, 3:5] = -np.swapaxes(self._pose_k(psi), -1, -2)
+                J[:, 7:11, 3:5] = -np.swapaxes(pose_k[0], -1, -2)
             f = self.frac_index
             if f is not None:
                 y = s[:, f]

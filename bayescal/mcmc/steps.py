@@ -141,28 +141,31 @@ class CollapsedTarget:
         """Whether the likelihood offers ``grad_log_marginal`` (else gradient moves are off)."""
         return callable(getattr(self.lik, "grad_log_marginal", None))
 
-    def _grad_log_prior_psi(self, psi, eps):
-        """Gradient (W, d) in psi of the log prior plus the log Jacobian, central
-        differences: theta's prior over theta's 7 entries only, the extras' (cheap) over
-        theirs, the log Jacobian over all."""
+    def _prior_value_and_grad(self, psi, eps):
+        """Log prior plus log Jacobian (W,) at psi (W, d) and its gradient (W, d) in psi by
+        central differences: theta's prior over theta's 7 entries only, the extras' (cheap)
+        over theirs, the log Jacobian over all; each term in one call for the rows and
+        their shifted copies."""
         W, d = psi.shape
         h = eps * np.maximum(1.0, np.abs(psi))                     # (W, d)
         E = np.eye(d)[:, None, :] * h[None]                        # (d, W, d)
-        up, dn = psi[None] + E, psi[None] - E
+        x = np.concatenate([psi[None], psi[None] + E, psi[None] - E])   # (1 + 2d, W, d)
         with np.errstate(invalid="ignore", divide="ignore"):
-            diff = self.coords.log_jacobian(up) - self.coords.log_jacobian(dn)     # (d, W)
-            diff[:7] += self.prior.logpdf_theta(up[:7, :, :7]) \
-                - self.prior.logpdf_theta(dn[:7, :, :7])
-            diff[7:] += self.lik.log_prior_extra(up[7:, :, 7:]) \
-                - self.lik.log_prior_extra(dn[7:, :, 7:])
-        return diff.T / (2.0 * h)
+            lj = self.coords.log_jacobian(x)                               # (1 + 2d, W)
+            th = self.prior.logpdf_theta(np.concatenate([x[:1], x[1:8], x[d + 1:d + 8]])[..., :7])
+            ex = self.lik.log_prior_extra(np.concatenate([x[:1], x[8:d + 1], x[d + 8:]])[..., 7:])
+            value = (th[0] + ex[0]) + lj[0]             # as __call__ adds them
+            diff = lj[1:d + 1] - lj[d + 1:]                                # (d, W)
+            diff[:7] += th[1:8] - th[8:]
+            diff[7:] += ex[1:d - 6] - ex[d - 6:]
+        return value, diff.T / (2.0 * h)
 
     def value_and_grad(self, s, eps=1e-6):
         """Log density (W,) and its gradient (W, d) in sampling coordinates.
 
         The likelihood part is analytic (``lik.grad_log_marginal``); the prior and the
         change-of-variables term (cheap) by central differences in psi
-        (:meth:`_grad_log_prior_psi`); both chained through ``d psi / d s``
+        (:meth:`_prior_value_and_grad`); both chained through ``d psi / d s``
         (:meth:`~bayescal.mcmc.coordinates.Coordinates.inverse_jacobian`). The value is
         exactly :meth:`__call__`'s. NaN gradient where the value is ``-inf``.
         """
@@ -171,16 +174,14 @@ class CollapsedTarget:
         self.n_calls += W
         self.n_grad_calls += W
         psi, dpsi = self.coords.inverse_jacobian(s)               # dpsi[w, k, j] = d psi_j / d s_k
-        with np.errstate(invalid="ignore", divide="ignore"):
-            lp = self.log_prior(psi) + self.coords.log_jacobian(psi)
+        lp, g_prior = self._prior_value_and_grad(psi, eps)
         out = np.full(W, -np.inf)
         grad = np.full((W, d), np.nan)
         ok = np.isfinite(lp)
         if np.any(ok):
             ll, g_psi = self.lik.grad_log_marginal(psi[ok], self.q_start, n_iter=self.n_iter)
             out[ok] = lp[ok] + ll
-            g_psi = g_psi + self._grad_log_prior_psi(psi[ok], eps)
-            grad[ok] = np.einsum("wkj,wj->wk", dpsi[ok], g_psi)
+            grad[ok] = np.einsum("wkj,wj->wk", dpsi[ok], g_psi + g_prior[ok])
         bad = ~np.isfinite(out)
         out[bad] = -np.inf
         grad[bad] = np.nan
