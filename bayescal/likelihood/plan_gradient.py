@@ -77,7 +77,9 @@ class PlanGradient:
                                                           * rj_geo, 0.0), axis=-2)
                 g_w = np.where(use[..., None], wt[..., None] * rj_wall, 0.0)   # (..., n, 2)
                 onehot = np.eye(self.n_walls)[self.wall_pair[sel, p]]          # (n, W)
-                grad[..., self.n_geo:k] -= np.einsum("...nj,nw->...wj", g_w, onehot).reshape(
+                # sum over each wall's points: a matrix product (einsum's loop was 10x slower)
+                grad[..., self.n_geo:k] -= np.swapaxes(np.swapaxes(g_w, -1, -2) @ onehot,
+                                                       -1, -2).reshape(
                     psi.shape[:-1] + (2 * self.n_walls,))
                 if self.infer_px:
                     grad[..., k] += np.sum(np.where(use, wt * rr, 0.0), axis=-1)

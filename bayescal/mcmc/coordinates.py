@@ -221,16 +221,17 @@ class Coordinates:
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
         return psi, pose_k
 
-    def inverse_jacobian(self, s, eps=1e-6):
+    def inverse_jacobian(self, s, eps=1e-8):
         """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
         psi_j / d s_k``.
 
         Only ``xi``, the ring radii, ``H`` and ``beta`` (entries 0, 1, 2, 5, 6) move other
-        entries of psi through the scales and the pose's ``k``: their columns are central
-        differences (10 shifted copies of every row, step ``eps * max(1, |s|)``, mapped in
-        one call with the rows themselves). The rest is closed-form: the identity, ``-k``
-        from the pose to ``(u0, v0)`` and the outlier fraction's ``d logit(y^3) / dy = 3 /
-        (y (1 - y^3))``.
+        entries of psi through the scales and the pose's ``k``: their columns are forward
+        differences (5 shifted copies of every row, step ``eps * max(1, |s|)``, near the
+        optimal step ``sqrt(machine eps)``: errors ~1e-8 relative; mapped in one call with
+        the rows themselves). The rest is closed-form: the identity, ``-k`` from the pose
+        to ``(u0, v0)`` and the outlier fraction's ``d logit(y^3) / dy = 3 / (y (1 -
+        y^3))``.
         """
         s = np.atleast_2d(np.asarray(s, float))
         W, d = s.shape
@@ -241,11 +242,9 @@ class Coordinates:
         E = np.zeros((m, W, d))
         E[np.arange(m), :, mixed] = h.T
         with np.errstate(invalid="ignore"):
-            out, pose_k = self._from_sampling(np.concatenate([s[None], s[None] + E,
-                                                              s[None] - E]))
+            out, pose_k = self._from_sampling(np.concatenate([s[None], s[None] + E]))
             psi = out[0]
-            J[:, mixed, :] = np.moveaxis((out[1:m + 1] - out[m + 1:]) / (2.0 * h.T[..., None]),
-                                         0, 1)
+            J[:, mixed, :] = np.moveaxis((out[1:] - psi) / h.T[..., None], 0, 1)
             if self.pose:
                 J[:, 7:11, 3:5] = -np.swapaxes(pose_k[0], -1, -2)
             f = self.frac_index

@@ -143,28 +143,28 @@ class CollapsedTarget:
 
     def _prior_value_and_grad(self, psi, eps):
         """Log prior plus log Jacobian (W,) at psi (W, d) and its gradient (W, d) in psi by
-        central differences: theta's prior over theta's 7 entries only, the extras' (cheap)
-        over theirs, the log Jacobian over all; each term in one call for the rows and
-        their shifted copies."""
+        forward differences (step ``eps * max(1, |psi|)``): theta's prior over theta's 7
+        entries only, the extras' (cheap) over theirs, the log Jacobian over all; each term
+        in one call for the rows and their shifted copies."""
         W, d = psi.shape
         h = eps * np.maximum(1.0, np.abs(psi))                     # (W, d)
         E = np.eye(d)[:, None, :] * h[None]                        # (d, W, d)
-        x = np.concatenate([psi[None], psi[None] + E, psi[None] - E])   # (1 + 2d, W, d)
+        x = np.concatenate([psi[None], psi[None] + E])             # (1 + d, W, d)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lj = self.coords.log_jacobian(x)                               # (1 + 2d, W)
-            th = self.prior.logpdf_theta(np.concatenate([x[:1], x[1:8], x[d + 1:d + 8]])[..., :7])
-            ex = self.lik.log_prior_extra(np.concatenate([x[:1], x[8:d + 1], x[d + 8:]])[..., 7:])
+            lj = self.coords.log_jacobian(x)                               # (1 + d, W)
+            th = self.prior.logpdf_theta(x[:8, :, :7])
+            ex = self.lik.log_prior_extra(np.concatenate([x[:1], x[8:]])[..., 7:])
             value = (th[0] + ex[0]) + lj[0]             # as __call__ adds them
-            diff = lj[1:d + 1] - lj[d + 1:]                                # (d, W)
-            diff[:7] += th[1:8] - th[8:]
-            diff[7:] += ex[1:d - 6] - ex[d - 6:]
-        return value, diff.T / (2.0 * h)
+            diff = lj[1:] - lj[0]                                          # (d, W)
+            diff[:7] += th[1:] - th[0]
+            diff[7:] += ex[1:] - ex[0]
+        return value, diff.T / h
 
-    def value_and_grad(self, s, eps=1e-6):
+    def value_and_grad(self, s, eps=1e-8):
         """Log density (W,) and its gradient (W, d) in sampling coordinates.
 
         The likelihood part is analytic (``lik.grad_log_marginal``); the prior and the
-        change-of-variables term (cheap) by central differences in psi
+        change-of-variables term (cheap) by forward differences in psi
         (:meth:`_prior_value_and_grad`); both chained through ``d psi / d s``
         (:meth:`~bayescal.mcmc.coordinates.Coordinates.inverse_jacobian`). The value is
         exactly :meth:`__call__`'s. NaN gradient where the value is ``-inf``.
