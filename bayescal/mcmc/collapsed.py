@@ -49,7 +49,7 @@ HMC_PATH = 1.5
 
 
 def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
-                  n_leapfrog=None, weights=None):
+                  n_leapfrog=None, weights=None, imh_weight=0.8):
     """emcee moves used by default.
 
     With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
@@ -58,8 +58,8 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     :class:`~bayescal.mcmc.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
     between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
     (the rest); ``weights`` (HMC, independence) replaces the two shares (a likelihood's
-    ``move_weights``). Without a gradient: the independence proposal (80 %) and DEMove
-    (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
+    ``move_weights``). Without a gradient: the independence proposal (``imh_weight``,
+    default 80 %) and DEMove (the rest). Without a proposal: DEMove (80 %) and StretchMove (20 %).
     ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
     distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
     """
@@ -68,8 +68,8 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     if mean is None:
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     if value_and_grad is None:
-        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
-                (de_move(), 0.2)]
+        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), imh_weight),
+                (de_move(), 1.0 - imh_weight)]
     n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
     w_hmc, w_imh = (HMC_WEIGHT, IMH_WEIGHT) if weights is None else weights
     moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog), w_hmc),
@@ -214,7 +214,7 @@ def _camera_holds_gamma(prior, cov_psi):
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                      moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None,
-                     budget=None):
+                     budget=None, draw_iter=None, imh_weight=None):
     """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
     Parameters
@@ -239,6 +239,12 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         Stop, not converged, after this many times the steps the stopping rule
         projected after 200 steps (:func:`~bayescal.mcmc.steps.run_until_converged`);
         None: run to ``max_steps``.
+    draw_iter : int, optional
+        Gauss-Newton iterations of the point draws' Laplace proposal (default
+        ``n_iter + 1``; the Metropolis-Hastings corrections keep the draws exact).
+    imh_weight : float, optional
+        Share of the independence move in a production run without HMC (default
+        :func:`default_moves`'); the rest is DEMove.
 
     Returns
     -------
@@ -287,6 +293,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     n_leap = int(np.clip(round(path / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
     prod_moves = default_moves(fit["mean"], spd_covariance(fit["cov"], cov_s), value_and_grad=vg,
                                weights=getattr(lik, "move_weights", None),
+                               **({} if imh_weight is None else {"imh_weight": imh_weight}),
                                step_size=fit["step_size"], n_leapfrog=n_leap) \
         if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
@@ -298,14 +305,15 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
                         tau_factor=tau_factor, min_ess=min_ess)
     psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
     # cache-sized batches of (sample, point) pairs (point_draws.DRAW_ELEMENTS)
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 1)
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh,
+                             n_iter=n_iter + 1 if draw_iter is None else int(draw_iter))
     # CPU seconds (this process) of the three phases: where a run's time goes
     diag.extra["cpu_seconds"] = {"tuning": t1 - t0, "production": t2 - t1,
                                  "points": time.process_time() - t2}
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
-def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
+def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500, n_iter=None):
     """Posterior probability (N,) that each row is an outlier: the mean over draws of its
     conditional probability given the globals (None without the mixture).
 
@@ -315,6 +323,8 @@ def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
     draws has a Monte-Carlo error below 0.5 / sqrt(500) = 0.02 even for independent draws,
     and each draw costs a likelihood evaluation. ``batch`` draws go in one vectorized call
     (default ~5e5 (draw, point) pairs: bounds the temporaries' memory at large N).
+    ``n_iter``: Gauss-Newton iterations of ``lik.outlier_prob`` from the drawn points
+    (None: its default).
     """
     if not getattr(lik, "outliers", False):
         return None
@@ -323,6 +333,7 @@ def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
     psi, q = psi[::every], q[::every]
     total = np.zeros(lik.n)
     for lo in range(0, len(psi), batch):
-        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
+        kw = {} if n_iter is None else {"n_iter": int(n_iter)}
+        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch], **kw)
         total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
     return total / len(psi)
