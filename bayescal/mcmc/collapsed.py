@@ -313,7 +313,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 
-def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500, n_iter=None):
+def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
     """Posterior probability (N,) that each row is an outlier: the mean over draws of its
     conditional probability given the globals (None without the mixture).
 
@@ -323,8 +323,6 @@ def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500, n_iter=None):
     draws has a Monte-Carlo error below 0.5 / sqrt(500) = 0.02 even for independent draws,
     and each draw costs a likelihood evaluation. ``batch`` draws go in one vectorized call
     (default ~5e5 (draw, point) pairs: bounds the temporaries' memory at large N).
-    ``n_iter``: Gauss-Newton iterations of ``lik.outlier_prob`` from the drawn points
-    (None: its default).
     """
     if not getattr(lik, "outliers", False):
         return None
@@ -333,7 +331,6 @@ def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500, n_iter=None):
     psi, q = psi[::every], q[::every]
     total = np.zeros(lik.n)
     for lo in range(0, len(psi), batch):
-        kw = {} if n_iter is None else {"n_iter": int(n_iter)}
-        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch], **kw)
+        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
         total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
     return total / len(psi)

@@ -68,9 +68,6 @@ ALIGNED_TUNE = 40
 #: share of the independence move in its production run (the rest differential evolution):
 #: 0.9 in place of 0.8 gave 6-22 % fewer evaluations per effective sample on the same rooms
 ALIGNED_IMH_WEIGHT = 0.9
-#: Gauss-Newton iterations of the outlier probabilities from the drawn points (near their
-#: modes): within 0.004 of converged ones on the rooms of docs/performance.md
-OUTLIER_ITER = 2
 
 __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
@@ -232,8 +229,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune,
                            budget=budget, draw_iter=n_iter if aligned else None,
                            imh_weight=ALIGNED_IMH_WEIGHT if aligned else None)
-    post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene,
-                     outlier_iter=OUTLIER_ITER if aligned else None)
+    post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
@@ -281,7 +277,7 @@ def _map_start(lik, map_res):
     return np.array(psi_map), cov, sol.q
 
 
-def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene, outlier_iter=None):
+def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene):
     """phi draws and the Posterior object (step 6)."""
     psi, diag = run["psi"], run["diagnostics"]
     phi = prior.sample_phi(psi[:, :7], rng=rng)
@@ -295,7 +291,7 @@ def _assemble(lik, prior, map_res, run, rng, *, sigma_px, sigma_scene, outlier_i
         n_steps=diag.n_steps, burn=diag.burn, n_walkers=diag.n_walkers,
         converged=diag.converged, acceptance=diag.acceptance,
         imh_acceptance=run["imh_acceptance"], diagnostics=diag,
-        outlier_prob=_outlier_prob(lik, psi, run["q"], n_iter=outlier_iter))
+        outlier_prob=_outlier_prob(lik, psi, run["q"]))
 
 
 def _check_noise_bounds(post):
