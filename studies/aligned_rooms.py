@@ -36,36 +36,27 @@ import numpy as np
 
 import bayescal as bc
 
+
+def _room(range_mm, kind, error, sigma_px, n, seed, infer, note=""):
+    """``(label, simulate_room keywords, whether sigma_px is inferred)`` of one room."""
+    label = (f"{range_mm} mm, {kind} {100 * error:g} %, {sigma_px:g} px"
+             f"{', sigma_px inferred' if infer else ''}, N={n}{note}")
+    return label, dict(range_mm=range_mm, n_points=n, sigma_px=sigma_px, approx_error=error,
+                       approx_model=kind, rng=seed), infer
+
+
 #: label, simulate_room keywords, whether sigma_px is inferred
-ROOMS = (
-    ("5000 mm, fig9 5 %, 0.1 px, N=580 (benchmark room 1)",
-     dict(range_mm=5000, n_points=580, sigma_px=0.1, approx_error=0.05, approx_model="fig9",
-          rng=3), False),
-    ("1000 mm, fig9 3 %, 0.1 px, N=580 (benchmark room 2)",
-     dict(range_mm=1000, n_points=580, sigma_px=0.1, approx_error=0.03, approx_model="fig9",
-          rng=5), False),
-    ("2500 mm, wall 3 %, 0.3 px, N=580",
-     dict(range_mm=2500, n_points=580, sigma_px=0.3, approx_error=0.03, approx_model="wall",
-          rng=21), False),
-    ("1000 mm, gaussian 1 %, 0.5 px, N=600",
-     dict(range_mm=1000, n_points=600, sigma_px=0.5, approx_error=0.01,
-          approx_model="gaussian", rng=22), False),
-    ("3000 mm, fig9 10 %, 0.2 px, sigma_px inferred, N=560",
-     dict(range_mm=3000, n_points=560, sigma_px=0.2, approx_error=0.10, approx_model="fig9",
-          rng=23), True),
-    ("5000 mm, wall 8 %, 0.5 px, sigma_px inferred, N=580",
-     dict(range_mm=5000, n_points=580, sigma_px=0.5, approx_error=0.08, approx_model="wall",
-          rng=24), True),
-    ("1500 mm, gaussian 5 %, 0.1 px, sigma_px inferred, N=620",
-     dict(range_mm=1500, n_points=620, sigma_px=0.1, approx_error=0.05,
-          approx_model="gaussian", rng=25), True),
-    ("4000 mm, fig9 1 %, 0.4 px, N=540",
-     dict(range_mm=4000, n_points=540, sigma_px=0.4, approx_error=0.01, approx_model="fig9",
-          rng=26), False),
-    ("2000 mm, wall 1 %, 0.1 px, sigma_px inferred, N=580",
-     dict(range_mm=2000, n_points=580, sigma_px=0.1, approx_error=0.01, approx_model="wall",
-          rng=27), True),
-)
+ROOMS = tuple(_room(*r) for r in (
+    (5000, "fig9", 0.05, 0.1, 580, 3, False, " (benchmark room 1)"),
+    (1000, "fig9", 0.03, 0.1, 580, 5, False, " (benchmark room 2)"),
+    (2500, "wall", 0.03, 0.3, 580, 21, False),
+    (1000, "gaussian", 0.01, 0.5, 600, 22, False),
+    (3000, "fig9", 0.10, 0.2, 560, 23, True),
+    (5000, "wall", 0.08, 0.5, 580, 24, True),
+    (1500, "gaussian", 0.05, 0.1, 620, 25, True),
+    (4000, "fig9", 0.01, 0.4, 540, 26, False),
+    (2000, "wall", 0.01, 0.1, 580, 27, True),
+))
 
 COLUMNS = ("room", "posterior CPU s / 1000 ESS", "lsq CPU s", "ratio (max)", "max tau",
            "steps", "evals / ESS", "tuning / production / points / rest",
