@@ -144,7 +144,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     n_point_mh : int, optional
         Independence Metropolis-Hastings corrections per point draw.
     n_iter : int, optional
-        Gauss-Newton iterations of the per-point Laplace step.
+        Gauss-Newton iterations of the per-point Laplace step (the sampler's target;
+        the point draws' proposal takes ``n_iter`` with the aligned cone and approximate
+        points, ``n_iter + 1`` otherwise).
     outliers : bool, optional
         Per-point outlier mixture (``docs/robustness.md``): each row is an
         inlier or, with probability ``w`` (Beta(1, 19) prior, sampled), an
