@@ -12,6 +12,7 @@ points) and :func:`bayescal.mcmc.floorplan.sample_plan_posterior` (floor plan).
 
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
@@ -48,7 +49,7 @@ HMC_PATH = 1.5
 
 
 def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
-                  n_leapfrog=None, weights=None):
+                  n_leapfrog=None, weights=None, imh_weight=0.8):
     """emcee moves used by default.
 
     With a proposal ``mean`` and ``cov`` and a gradient ``value_and_grad`` (the
@@ -57,8 +58,8 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     :class:`~bayescal.mcmc.moves.IndependenceMove` (``IMH_WEIGHT``, cheap, jumps
     between distant parts where the proposal fits) and :class:`emcee.moves.DEMove`
     (the rest); ``weights`` (HMC, independence) replaces the two shares (a likelihood's
-    ``move_weights``). Without a gradient: the independence proposal (80 %) and DEMove
-    (20 %). Without a proposal: DEMove (80 %) and StretchMove (20 %).
+    ``move_weights``). Without a gradient: the independence proposal (``imh_weight``,
+    default 80 %) and DEMove (the rest). Without a proposal: DEMove (80 %) and StretchMove (20 %).
     ``DESnookerMove`` is deliberately absent: in emcee 3.1.6 it samples the wrong
     distribution (``docs/bayes.md`` section 3). Each move here is tested on N(0, I).
     """
@@ -67,8 +68,8 @@ def default_moves(mean=None, cov=None, *, value_and_grad=None, step_size=0.3,
     if mean is None:
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
     if value_and_grad is None:
-        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), 0.8),
-                (de_move(), 0.2)]
+        return [(IndependenceMove(mean, cov, scale=1.1, df=imh_df(len(mean))), imh_weight),
+                (de_move(), 1.0 - imh_weight)]
     n_leapfrog = HMC_LEAPFROG if n_leapfrog is None else int(n_leapfrog)
     w_hmc, w_imh = (HMC_WEIGHT, IMH_WEIGHT) if weights is None else weights
     moves = [(HMCMove(value_and_grad, cov, step_size=step_size, n_steps=n_leapfrog), w_hmc),
@@ -81,6 +82,30 @@ def _moves_text(moves):
     if moves is None:
         return "default"
     return ", ".join(f"{type(m).__name__} {w:.0%}" for m, w in moves)
+
+
+def _diagnostics(lik, info, sampler, fit, prod_moves, target, n_tune_calls, *, tau_factor,
+                 min_ess):
+    """The run's :class:`~bayescal.stats.chains.ChainDiagnostics` (``extra``: the tuning
+    rounds' acceptances, evaluation counts, the production run's independence acceptance)."""
+    return ChainDiagnostics(
+        names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
+        tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
+        n_walkers=sampler.nwalkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
+        converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
+        moves=_moves_text(prod_moves),
+        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
+               "n_gradient_evaluations": int(target.n_grad_calls),
+               "tuning_imh_acceptance": fit["imh_acceptance"],
+               "hmc_step_size": fit["step_size"], "stopped": info.get("stopped"),
+               "n_tuning_evaluations": int(n_tune_calls),
+               "imh_acceptance": _imh_acceptance(prod_moves)})
+
+
+def _imh_acceptance(moves):
+    """The production run's independence acceptance (NaN without that move)."""
+    acc = [m.acceptance for m, _ in moves if isinstance(m, IndependenceMove)]
+    return float(acc[0]) if acc else float("nan")
 
 
 def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
@@ -189,7 +214,7 @@ def _camera_holds_gamma(prior, cov_psi):
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                      moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None,
-                     budget=None):
+                     budget=None, draw_iter=None, imh_weight=None):
     """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
     Parameters
@@ -214,12 +239,22 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
         Stop, not converged, after this many times the steps the stopping rule
         projected after 200 steps (:func:`~bayescal.mcmc.steps.run_until_converged`);
         None: run to ``max_steps``.
+    draw_iter : int, optional
+        Gauss-Newton iterations of the point draws' Laplace proposal (default
+        ``n_iter + 1``; the Metropolis-Hastings corrections keep the draws exact).
+    imh_weight : float, optional
+        Share of the independence move in a production run without HMC (default
+        :func:`default_moves`'); the rest is DEMove.
 
     Returns
     -------
     dict
         ``psi`` (S, d) samples, ``q`` (S, N, k) point draws, ``diagnostics``
-        (:class:`~bayescal.stats.chains.ChainDiagnostics`), ``imh_acceptance``.
+        (:class:`~bayescal.stats.chains.ChainDiagnostics`; its ``extra`` holds the
+        evaluation counts, ``n_tuning_evaluations`` of them in the tuning rounds, the
+        independence acceptance per tuning round and of the production run, and
+        ``cpu_seconds``: this process's CPU time in the tuning rounds, the production
+        run and the point draws), ``imh_acceptance`` (the point draws').
     """
     check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
@@ -246,8 +281,10 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     s_map = coords.to_sampling(psi_map)
     cov_s = spd_covariance(J @ np.asarray(cov_psi_map, float) @ J.T,
                            what="Laplace covariance at the least-squares start")
+    t0 = time.process_time()
     fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
     p0 = spread_walkers(fit["state"], target, fit["cov"], rng)
+    t1, n_tune_calls = time.process_time(), int(target.n_calls)
     # HMC only where the first tuning round's independence proposal fitted badly
     vg = target.value_and_grad if target.has_gradient and fit["use_hmc"] else None
     # a trajectory of ~1.5 whitened units: more leapfrog steps where the step had to shrink
@@ -256,25 +293,23 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     n_leap = int(np.clip(round(path / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
     prod_moves = default_moves(fit["mean"], spd_covariance(fit["cov"], cov_s), value_and_grad=vg,
                                weights=getattr(lik, "move_weights", None),
+                               **({} if imh_weight is None else {"imh_weight": imh_weight}),
                                step_size=fit["step_size"], n_leapfrog=n_leap) \
         if moves is None else moves
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=100, progress=progress,
                                coords=coords, budget=budget)
-    diag = ChainDiagnostics(
-        names=("xi", "gamma_u", "gamma_v", "u0", "v0", "h", "beta") + tuple(lik.extra_names),
-        tau=info["tau"], ess=info["ess"], n_steps=info["n_steps"], burn=info["burn"],
-        n_walkers=n_walkers, acceptance=float(np.mean(sampler.acceptance_fraction)),
-        converged=info["converged"], tau_factor=float(tau_factor), min_ess=float(min_ess),
-        moves=_moves_text(prod_moves),
-        extra={"tuning_acceptance": fit["acceptance"], "n_evaluations": int(target.n_calls),
-               "n_gradient_evaluations": int(target.n_grad_calls),
-               "tuning_imh_acceptance": fit["imh_acceptance"],
-               "hmc_step_size": fit["step_size"], "stopped": info.get("stopped")})
+    t2 = time.process_time()
+    diag = _diagnostics(lik, info, sampler, fit, prod_moves, target, n_tune_calls,
+                        tau_factor=tau_factor, min_ess=min_ess)
     psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
     # cache-sized batches of (sample, point) pairs (point_draws.DRAW_ELEMENTS)
-    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh, n_iter=n_iter + 1)
+    q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh,
+                             n_iter=n_iter + 1 if draw_iter is None else int(draw_iter))
+    # CPU seconds (this process) of the three phases: where a run's time goes
+    diag.extra["cpu_seconds"] = {"tuning": t1 - t0, "production": t2 - t1,
+                                 "points": time.process_time() - t2}
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
 
 

@@ -47,6 +47,8 @@ MOVES = {
     "StretchMove": lambda: [emcee.moves.StretchMove()],
     "default mixture (tuned)": lambda: default_moves(BAD_MEAN, BAD_COV),
     "default mixture (untuned)": lambda: default_moves(),
+    "default mixture, 90 % independence": lambda: default_moves(BAD_MEAN, BAD_COV,
+                                                                imh_weight=0.9),
     "HMC (mismatched mass matrix)": lambda: [HMCMove(_normal_value_and_grad, BAD_COV,
                                                      step_size=0.4, n_steps=5)],
     "default mixture with HMC": lambda: default_moves(BAD_MEAN, BAD_COV,

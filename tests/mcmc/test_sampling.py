@@ -4,6 +4,7 @@ Kept small (60-150 points, min_ess 200, a few hundred samples): each run takes a
 seconds. The statistical validation against brute force and coverage are slow studies.
 """
 
+import time
 import warnings
 
 import numpy as np
@@ -75,6 +76,26 @@ def test_output_shapes_and_convergence_rule():
     rho = np.hypot(post.point_samples[..., 0], post.point_samples[..., 1])
     z = rho / np.tan(a[:, None, 7]) - a[:, None, 6]
     np.testing.assert_allclose(post.point_samples[..., 2], z, rtol=1e-10, atol=1e-9)
+
+
+def test_run_records_its_phases_and_uses_the_aligned_settings():
+    # the aligned cone with approximate points: tuning rounds of ALIGNED_TUNE steps, 90 %
+    # independence moves in the production run; the diagnostics say where the CPU went
+    ds = _room(60)
+    c0 = time.process_time()
+    post = _sample(ds, rng=4)
+    cpu = time.process_time() - c0
+    extra, walkers = post.diagnostics.extra, post.n_walkers
+    phases = extra["cpu_seconds"]
+    assert set(phases) == {"tuning", "production", "points"}
+    assert all(v >= 0 for v in phases.values()) and sum(phases.values()) <= cpu
+    # each tuning step evaluates every walker once (independence: all, DE: both halves);
+    # the walker placement adds a few evaluations, far fewer than a 60-step round would
+    n_tune = extra["n_tuning_evaluations"]
+    assert 3 * sampling.ALIGNED_TUNE * walkers <= n_tune < 3 * 60 * walkers
+    assert n_tune < extra["n_evaluations"]
+    assert "IndependenceMove 90%" in post.diagnostics.moves
+    assert 0 < extra["imh_acceptance"] <= 1
 
 
 def test_same_seed_same_samples_different_seed_different():
