@@ -12,14 +12,14 @@ ring's normal, and report
   neighbouring walls (constant per wall, or smooth over tens of degrees?);
 - the floor-plan calibration (``calibrate_simultaneous(pixels, plan, sigma_px=None,
   pixel_cov=...)``, a plan drawn 2 % off the true walls) against the truth in its sds, with
-  the Laplace covariance and with the ring sandwich (``sandwich_deg``) of each bandwidth;
+  the Laplace covariance, with a residual sandwich (HAC) and with ``ring_corr_deg``;
   and the MAP's shift that the measured errors predict to first order (all of them, and
   their per-wall means only).
 
 Usage::
 
     python studies/wallbias.py --out out/wallbias [--renderer3 PATH/renderer3.py]
-        [--seeds 3] [--hac 3 12] [--ring 0.05 5 0.1 5]
+        [--seeds 3] [--hac 3 12] [--ring 1 2]
 """
 
 from __future__ import annotations
@@ -172,7 +172,8 @@ def hac_cov(lik, sol, bandwidth_deg):
     (Lambda + sum_ij k_ij h_i e_i e_j h_j^T) S^-1``, ``Lambda`` the prior rows' information."""
     from bayescal.fit.floorplan import normal_sensitivity
 
-    _, h = normal_sensitivity(lik, sol)
+    P, sd = normal_sensitivity(lik, sol)
+    h = -np.linalg.solve(sol.cov, P).T                    # the gradient's change per px
     o, W = lik.n_geo + 1, lik.n_walls
     R = lik.residuals(sol.g[:o - 1], sol.g[o:].reshape(W, 2), sol.t, sol.wall_index, 1.0)
     if lik.px_white is not None:                # unwhitened: model - pixel, px
@@ -192,10 +193,10 @@ def hac_cov(lik, sol, bandwidth_deg):
 def calibrate_z(pix, cov, plan, truth, offset_sd, errors, variants):
     """The floor-plan MAP's identifiable parameters against the truth in their sds, with the
     Laplace covariance (``plain``) and each variant: ``("hac", bandwidth deg)`` (a sandwich
-    on the fit's residuals) or ``("ring", sd px, scale deg)`` (``ring_error_cov``); and the
+    on the fit's residuals) or ``("ring", scale deg)`` (``ring_corr_cov``); and the
     first-order shift of the MAP that the measured errors predict (``shift_pred_sd``), and
     its part from the per-wall means of the errors (``shift_wallmean_sd``)."""
-    from bayescal.fit.floorplan import _fit, normal_sensitivity, ring_error_cov
+    from bayescal.fit.floorplan import _fit, normal_sensitivity, ring_corr_cov
 
     try:
         lik, _, sol = _fit(pix, plan, sigma_px=None, prior=None, init=None, max_iter=200,
@@ -212,7 +213,7 @@ def calibrate_z(pix, cov, plan, truth, offset_sd, errors, variants):
         elif v[0] == "hac":
             c = hac_cov(lik, sol, v[1])
         else:
-            c = sol.cov + ring_error_cov(lik, sol, v[1], v[2])
+            c = sol.cov + ring_corr_cov(lik, sol, v[1])
         out[name] = dict(zip(IDENT, np.round(err / np.sqrt(np.diag(c[:7, :7] + off)),
                                              3).tolist(), strict=True))
     sd7 = np.sqrt(np.diag(sol.cov[:7, :7] + off))
@@ -248,22 +249,62 @@ def trial(renderer, scenario, background, seed, r3, variants):
     return out
 
 
+def fit_kernel(prod, count, max_lag=40, scales=(1, 2, 3, 5, 8, 12, 20, 30)):
+    """Pooled error covariance per 1-degree lag (px^2) and the exponential kernel
+    ``s^2 exp(-lag / scale)`` fitted (count-weighted least squares) to lags 1..max_lag:
+    ``(cov per lag, s, scale)``."""
+    prod, count = np.sum(prod, axis=0), np.sum(count, axis=0)
+    c = prod / np.maximum(count, 1)
+    k = np.arange(1, max_lag + 1)
+    w, y = count[k], c[k]
+    best = None
+    for sc in scales:
+        f = np.exp(-k / sc)
+        s2 = max(float(np.sum(w * y * f) / np.sum(w * f * f)), 0.0)
+        sse = float(np.sum(w * (y - s2 * f) ** 2))
+        best = (sse, np.sqrt(s2), sc) if best is None or sse < best[0] else best
+    return c, best[1], best[2]
+
+
+def summarize(rows):
+    """Per renderer and laser-off setting: pooled lag covariance, fitted kernel, and the
+    rms over images of the z of u0, v0 and of all seven, per covariance variant."""
+    groups = {}
+    for r in rows:
+        if "calib" in r and "error" not in r["calib"]:
+            groups.setdefault((r["renderer"], r["scenario"], r["background"]), []).append(r)
+    for (ren, sc, bg), rs in groups.items():
+        c, s, scale = fit_kernel([r["lag_products"][0] for r in rs],
+                                 [r["lag_products"][1] for r in rs])
+        print(f"{ren} {sc} bg={int(bg)} n={len(rs)}: var {c[0]:.4f} px^2, corr at 1,2,3,5,"
+              f"10,20 deg {np.round(c[[1, 2, 3, 5, 10, 20]] / c[0], 3).tolist()}; "
+              f"kernel s {s:.3f} px, scale {scale} deg")
+        names = [k for k in rs[0]["calib"] if k.startswith(("plain", "hac", "ring"))]
+        for n in names:
+            z = np.array([[r["calib"][n][p] for p in IDENT] for r in rs])
+            print(f"    {n:14s} z rms u0 {np.sqrt(np.mean(z[:, 3] ** 2)):.2f} v0 "
+                  f"{np.sqrt(np.mean(z[:, 4] ** 2)):.2f} all {np.sqrt(np.mean(z ** 2)):.2f} "
+                  f"max|z| {np.max(np.abs(z)):.2f}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
+    ap.add_argument("--summarize", action="store_true", help="summarise --out's JSON")
     ap.add_argument("--renderer3", default=None)
     ap.add_argument("--renderers", default="ours,renderer2,renderer3")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--hac", type=float, nargs="*", default=[3.0, 12.0],
                     help="bandwidths (deg) of the residual sandwich")
-    ap.add_argument("--ring", type=float, nargs="*", default=[0.05, 5.0, 0.1, 5.0],
-                    help="pairs: sd (px), scale (deg) of ring_error_cov")
+    ap.add_argument("--ring", type=float, nargs="*", default=[1.0, 2.0],
+                    help="correlation scales (deg) of ring_corr_cov")
     a = ap.parse_args(argv)
     r3 = _load_r3(a.renderer3) if a.renderer3 else None
     variants = {f"hac {b:g}": ("hac", b) for b in a.hac}
-    variants |= {f"ring {sd:g} {sc:g}": ("ring", sd, sc)
-                 for sd, sc in zip(a.ring[::2], a.ring[1::2], strict=True)}
+    variants |= {f"ring {sc:g}": ("ring", sc) for sc in a.ring}
     out = pathlib.Path(a.out)
+    if a.summarize:
+        return summarize(json.loads((out / "wallbias.json").read_text()))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for r in a.renderers.split(","):

@@ -45,10 +45,9 @@ from ..sensor.pose import POSE_NAMES
 from .plan_robust import PlanRetry
 from .schur import _prior_rows, damped_step, safe_inv
 
-__all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS", "RING_ERROR_DEG",
-           "normal_sensitivity", "ring_error_cov"]
-
-RING_ERROR_DEG = 5.0        #: ring_error_cov's default scale, deg (docs/floorplan.md)
+__all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS", "RING_CORR_DEG",
+           "normal_sensitivity", "ring_corr_cov"]
+RING_CORR_DEG = 1.0     #: the extractor's error correlation scale, deg (docs/floorplan.md)
 
 
 class PlanMapSolution:
@@ -434,15 +433,15 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
                    max_iter=200, raise_on_failure=True, outliers=True,
                    outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None,
-                   model="aligned", ring_error=(0.0, RING_ERROR_DEG)):
+                   model="aligned", ring_corr_deg=0.0):
     """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
 
     Called by :func:`bayescal.calibrate_simultaneous` when its second argument
     is a :class:`~bayescal.FloorPlan`; parameters as there. ``pixel_cov`` (N, 2, 2),
     px^2: per-point pixel covariances, the noise of pixel i ``sigma_px^2 pixel_cov_i``
     (``sigma_px`` a scale on them; ``None`` infers that scale). ``model="misaligned"``
-    fits the laser cone's tilt and offset too (``result.laser``). ``ring_error``
-    ``(sd px, scale deg)``: :func:`ring_error_cov` added to the covariance.
+    fits the laser cone's tilt and offset too (``result.laser``). ``ring_corr_deg``
+    > 0: :func:`ring_corr_cov` added to the covariance.
 
     Returns
     -------
@@ -458,10 +457,10 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
-    if ring_error[0] > 0:
-        sol.cov = sol.cov + ring_error_cov(lik, sol, *ring_error)
+    if ring_corr_deg > 0:
+        sol.cov = sol.cov + ring_corr_cov(lik, sol, ring_corr_deg)
     result = make_result(lik, sol, absolute_sigma, False, prior=prior)
-    result.extras["ring_error"] = tuple(ring_error)         # (sd px, scale deg)
+    result.extras["ring_corr_deg"] = ring_corr_deg
     result.extras["robust_start"] = bool(getattr(sol, "robust", False))
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
@@ -473,26 +472,27 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
 
 
 def normal_sensitivity(lik, sol):
-    """``(P, h)``: ``P`` (G, N) the first-order change of the MAP ``g`` when pixel ``i`` moves
-    1 px along the ring's normal (radial about the fitted ``(u0, v0)``, outwards):
+    """``(P, sd)``: ``P`` (G, N) the first-order change of the MAP ``g`` when pixel ``i``
+    moves 1 px along the ring's normal (radial about the fitted ``(u0, v0)``, outwards):
     ``-S^-1 h_i``, ``h_i = J_g,i^T dR_i - B_i (J_t,i . dR_i) / C_i`` (the gradient's change,
-    azimuths eliminated; ``dR_i`` the whitened residuals' change)."""
+    azimuths eliminated; ``dR_i`` the whitened residuals'); ``sd`` (N,) px, the sd the fit
+    gives pixel ``i`` along that normal, ``1 / |dR_i|``."""
     ne, rad = sol.ne, lik.pixels - sol.g[3:5]
     w = 1.0 if lik.em_weights is None else np.sqrt(lik.em_weights)[:, None]
     dR = -whiten(lik.px_white, rad / np.linalg.norm(rad, axis=1, keepdims=True) / sol.sigma_px) * w
     h = np.einsum("nki,nk->ni", ne["Jg"], dR) - ne["B"] * (
         np.einsum("nk,nk->n", ne["Jt"], dR) / ne["C"])[:, None]
-    return -(sol.cov @ h.T), h
+    return -(sol.cov @ h.T), 1.0 / np.linalg.norm(dR, axis=1)
 
 
-def ring_error_cov(lik, sol, sd, scale_deg):
-    """Covariance of ``g`` (G, G) added by an error along the ring's normal with covariance
-    ``sd^2 exp(-|t_i - t_j| / scale)`` (px, azimuth): ``P K P^T`` (:func:`normal_sensitivity`;
-    ``docs/floorplan.md``, "Errors correlated along the ring")."""
-    P = normal_sensitivity(lik, sol)[0]
+def ring_corr_cov(lik, sol, scale_deg):
+    """Covariance of ``g`` (G, G) added when the points' errors along the ring's normal, each
+    of its sd, are correlated as ``R = exp(-|t_i - t_j| / scale)``: ``Q (R - I) Q^T``, ``Q =
+    P diag(sd)`` (:func:`normal_sensitivity`; docs/floorplan.md, "Errors correlated ...")."""
+    P, sd = normal_sensitivity(lik, sol)
     lag = np.abs(np.angle(np.exp(1j * (sol.t[:, None] - sol.t[None]))))
-    C = P @ np.exp(-lag / np.radians(scale_deg)) @ P.T
-    return float(sd) ** 2 * 0.5 * (C + C.T)
+    C = (P * sd) @ (np.exp(-lag / np.radians(scale_deg)) - np.eye(len(sd))) @ (P * sd).T
+    return 0.5 * (C + C.T)
 
 
 #: the robust retry of :func:`_fit` (:mod:`bayescal.fit.plan_robust`), on this module's steps

@@ -1,6 +1,6 @@
-"""An extraction error correlated along the ring (bayescal.fit.floorplan.normal_sensitivity,
-ring_error_cov; ``calibrate_simultaneous(..., ring_error_sd=, ring_error_deg=)``;
-docs/floorplan.md, "Errors correlated along the ring")."""
+"""Pixel errors correlated along the ring (bayescal.fit.floorplan.normal_sensitivity,
+ring_corr_cov; ``calibrate_simultaneous(..., ring_corr_deg=)``; docs/floorplan.md, "Errors
+correlated along the ring")."""
 
 import copy
 
@@ -24,8 +24,9 @@ def _fit(pixels, plan):
 
 def test_normal_sensitivity_matches_a_refit_of_moved_pixels(room):
     lik, prior, sol = _fit(room.pixels, room.floor_plan)
-    P, h = fp.normal_sensitivity(lik, sol)
-    assert P.shape == (len(sol.g), lik.n) and h.shape == (lik.n, len(sol.g))
+    P, sd = fp.normal_sensitivity(lik, sol)
+    assert P.shape == (len(sol.g), lik.n) and sd.shape == (lik.n,)
+    assert np.allclose(sd, 0.2, rtol=1e-9)                     # isotropic 0.2 px noise
     rad = room.pixels - sol.g[3:5]
     rad /= np.linalg.norm(rad, axis=1, keepdims=True)
     delta = 0.01 * (np.cos(3 * sol.t) + 0.5)          # px along the normal, smooth in azimuth
@@ -40,39 +41,40 @@ def test_normal_sensitivity_matches_a_refit_of_moved_pixels(room):
     assert np.max(np.abs(pred)) > 0.01               # the move matters: the check is not empty
 
 
-def test_ring_error_widens_the_intervals_and_leaves_the_fit(room):
+def test_ring_corr_widens_the_intervals_and_leaves_the_fit(room):
     plain = bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=0.2,
                                       outliers=False)
     wide = bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=0.2,
-                                     outliers=False, ring_error_sd=0.1, ring_error_deg=5.0)
+                                     outliers=False, ring_corr_deg=2.0)
     assert np.array_equal(plain.params.to_array(), wide.params.to_array())
     c0, c1 = plain.covariance_identifiable, wide.covariance_identifiable
-    assert np.all(np.linalg.eigvalsh(c1 - c0) > -1e-12 * np.max(np.diag(c0)))
-    assert c1[3, 3] > 1.1 * c0[3, 3] and c1[4, 4] > 1.1 * c0[4, 4]
-    assert wide.extras["ring_error"] == (0.1, 5.0)
-    # the same as P K P^T from the module's functions
+    assert np.all(np.linalg.eigvalsh(c1 - c0) > -1e-9 * np.max(np.diag(c0)))
+    # 120 points 3 degrees apart, neighbours correlated exp(-3/2) = 0.22: u0's and v0's
+    # data share of their variance (31 % and 18 % here; the rest the plan's) grows
+    assert c1[3, 3] > 1.05 * c0[3, 3] and c1[4, 4] > 1.05 * c0[4, 4]
+    assert wide.extras["ring_corr_deg"] == 2.0
     lik, _, sol = _fit(room.pixels, room.floor_plan)
-    add = fp.ring_error_cov(lik, sol, 0.1, 5.0)
+    add = fp.ring_corr_cov(lik, sol, 2.0)
     assert np.allclose(np.diag(sol.cov + add)[3:5], np.diag(c1)[3:5], rtol=1e-6)
+    grow = [fp.ring_corr_cov(lik, sol, d)[3, 3] for d in (1.0, 2.0, 5.0)]
+    assert 0 < grow[0] < grow[1] < grow[2]                    # longer correlation, wider
 
 
-def test_a_short_scale_is_independent_noise_and_a_long_one_a_shared_shift(room):
+def test_the_term_is_none_at_a_tiny_scale_and_a_shared_shift_at_a_huge_one(room):
     lik, _, sol = _fit(room.pixels, room.floor_plan)
-    P, _ = fp.normal_sensitivity(lik, sol)
-    assert np.allclose(fp.ring_error_cov(lik, sol, 0.1, 1e-3), 0.01 * P @ P.T, atol=1e-12)
-    # a scale far beyond a turn: every point moved alike (the kernel 1 - O(pi / scale))
-    one, bound = P.sum(axis=1), np.abs(P).sum(axis=1)
-    err = fp.ring_error_cov(lik, sol, 0.1, 1e9) - 0.01 * np.outer(one, one)
-    assert np.all(np.abs(err) <= 1e-5 * 0.01 * np.outer(bound, bound))
+    P, sd = fp.normal_sensitivity(lik, sol)
+    assert np.allclose(fp.ring_corr_cov(lik, sol, 1e-3), 0.0, atol=1e-15)
+    # a scale far beyond a turn: every error the same draw, P sd summed, less the diagonal
+    Q = P * sd
+    one, bound = Q.sum(axis=1), np.abs(Q).sum(axis=1)
+    err = fp.ring_corr_cov(lik, sol, 1e9) - (np.outer(one, one) - Q @ Q.T)
+    assert np.all(np.abs(err) <= 1e-5 * np.outer(bound, bound))
 
 
-def test_ring_error_is_refused_without_a_plan_or_out_of_range(room):
-    with pytest.raises(ValueError, match="ring_error_sd=0.05 needs a FloorPlan"):
+def test_ring_corr_is_refused_without_a_plan_or_negative(room):
+    with pytest.raises(ValueError, match="ring_corr_deg=1.0 needs a FloorPlan"):
         bc.calibrate_simultaneous(room.pixels, room.approx_points, sigma_px=0.2,
-                                  sigma_scene=room.sigma_scene, ring_error_sd=0.05)
-    with pytest.raises(ValueError, match="ring_error_sd must be a finite non-negative"):
+                                  sigma_scene=room.sigma_scene, ring_corr_deg=1.0)
+    with pytest.raises(ValueError, match="ring_corr_deg must be a finite non-negative"):
         bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=0.2,
-                                  ring_error_sd=-1.0)
-    with pytest.raises(ValueError, match="ring_error_deg must be a finite positive"):
-        bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=0.2,
-                                  ring_error_deg=0.0)
+                                  ring_corr_deg=-1.0)
