@@ -19,7 +19,7 @@ ring's normal, and report
 Usage::
 
     python studies/wallbias.py --out out/wallbias [--renderer3 PATH/renderer3.py]
-        [--seeds 3] [--hac 3 12] [--ring 1 2]
+        [--seeds 3] [--hac 3 12] [--ring 1 2] [--wall 0.1]
 """
 
 from __future__ import annotations
@@ -207,18 +207,23 @@ def calibrate_z(pix, cov, plan, truth, offset_sd, errors, variants):
     err = (sol.g[:7] - identifiable(truth))
     off = np.diag([0, 0, 0, offset_sd ** 2, offset_sd ** 2, 0, 0])
     out = {"check_ok": bool(sol.check["ok"]), "sigma_scale": sol.sigma_px}
+    W = lik.n_walls
     for name, v in {"plain": None, **variants}.items():
         if v is None:
             c = sol.cov
         elif v[0] == "hac":
             c = hac_cov(lik, sol, v[1])
+        elif v[0] == "wall":            # a pixel offset of sd v[1] shared by each wall's points
+            full = normal_sensitivity(lik, sol)[0]
+            V = np.zeros((W, len(full)))
+            np.add.at(V, sol.wall_index, full.T)
+            c = sol.cov + v[1] ** 2 * V.T @ V
         else:
             c = sol.cov + ring_corr_cov(lik, sol, v[1])
         out[name] = dict(zip(IDENT, np.round(err / np.sqrt(np.diag(c[:7, :7] + off)),
                                              3).tolist(), strict=True))
     sd7 = np.sqrt(np.diag(sol.cov[:7, :7] + off))
     e = np.where(np.isfinite(errors), np.clip(errors, -1.0, 1.0), 0.0)
-    W = lik.n_walls
     wm = np.zeros(W)
     np.add.at(wm, sol.wall_index, e)
     wm /= np.maximum(np.bincount(sol.wall_index, minlength=W), 1)
@@ -279,7 +284,7 @@ def summarize(rows):
         print(f"{ren} {sc} bg={int(bg)} n={len(rs)}: var {c[0]:.4f} px^2, corr at 1,2,3,5,"
               f"10,20 deg {np.round(c[[1, 2, 3, 5, 10, 20]] / c[0], 3).tolist()}; "
               f"kernel s {s:.3f} px, scale {scale} deg")
-        names = [k for k in rs[0]["calib"] if k.startswith(("plain", "hac", "ring"))]
+        names = [k for k in rs[0]["calib"] if k.startswith(("plain", "hac", "ring", "wall"))]
         for n in names:
             z = np.array([[r["calib"][n][p] for p in IDENT] for r in rs])
             print(f"    {n:14s} z rms u0 {np.sqrt(np.mean(z[:, 3] ** 2)):.2f} v0 "
@@ -298,10 +303,13 @@ def main(argv=None):
                     help="bandwidths (deg) of the residual sandwich")
     ap.add_argument("--ring", type=float, nargs="*", default=[1.0, 2.0],
                     help="correlation scales (deg) of ring_corr_cov")
+    ap.add_argument("--wall", type=float, nargs="*", default=[0.1],
+                    help="sds (px) of a pixel offset shared by each wall's points")
     a = ap.parse_args(argv)
     r3 = _load_r3(a.renderer3) if a.renderer3 else None
     variants = {f"hac {b:g}": ("hac", b) for b in a.hac}
     variants |= {f"ring {sc:g}": ("ring", sc) for sc in a.ring}
+    variants |= {f"wall {sd:g}": ("wall", sd) for sd in a.wall}
     out = pathlib.Path(a.out)
     if a.summarize:
         return summarize(json.loads((out / "wallbias.json").read_text()))
@@ -333,7 +341,7 @@ def summary_line(t):
               f"{c['shift_wallmean_sd']['u0']:+.2f} {c['shift_wallmean_sd']['v0']:+.2f})" + \
               "".join(f" | {k}: {v['u0']:+.2f} {v['v0']:+.2f} max "
                       f"{max(abs(x) for x in v.values()):.2f}"
-                      for k, v in c.items() if k.startswith(("plain", "hac", "ring")))
+                      for k, v in c.items() if k.startswith(("plain", "hac", "ring", "wall")))
     return (f"{head} pt_sd {t['point_sd']:.3f} rob {t['robust_sd']:.3f} | wall z rms "
             f"{np.sqrt(np.mean(np.square(wz))):.2f} max|mean| {max(np.abs(wm)):.3f} | {cal}")
 
