@@ -32,7 +32,7 @@ from ..sensor.parameters import CAMERA_PARAM_NAMES
 from . import options as op
 from .design import image_size_setting, note_design, note_flagged, read_nominal
 from .lasermodel import camera_nominal, model_setting, nominal_and_prior, read_camera
-from .pixelcov import pixel_cov_setting
+from .pixelcov import pixel_cov_setting, ring_corr_setting
 
 __all__ = ["SimulateJob", "ExtractJob",
            "CalibrateJob", "ReconstructJob", "ReportJob", "DemoJob", "StudyJob",
@@ -163,7 +163,7 @@ class CalibrateJob:
     sigma_px_how, sigma_scene_how : str
         Where they came from, for the report.
     image_size : (int, int)
-    seed, max_steps, progress, allow_unconverged, out, force, inputs, title, command
+    seed, max_steps, progress, allow_unconverged, out, force, inputs, title, command, ring_corr
     plan : FloorPlan or None
         ``--walls``: the rough floor plan in place of approximate points.
     outliers : bool
@@ -209,6 +209,7 @@ class CalibrateJob:
     camera: object = None
     image_size_how: str = "--image-size"
     derived: dict = field(default_factory=dict)
+    ring_corr: float = 0.0
 
     @classmethod
     def build(cls, *, title=None, **options):
@@ -254,7 +255,8 @@ class CalibrateJob:
                    title=title, command=" ".join(shlex.quote(a) for a in sys.argv),
                    plan=plan, outliers=not o["no_outliers"], duplicate_lines=tuple(dups),
                    model=model, model_note=note, camera=camera,
-                   image_size_how=size[1], derived=derived)
+                   image_size_how=size[1], derived=derived,
+                   ring_corr=ring_corr_setting(o["ring_corr"], method, plan))
 
     @staticmethod
     def _read(o, given):

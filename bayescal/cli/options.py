@@ -337,6 +337,10 @@ CALIBRATE_OPTIONS = (
     Opt(("--angle-sd",), {"type": positive_float, "default": 0.01, "metavar": "RAD",
                           "help": "--walls without an angle_sd column: sd of each wall's "
                           "orientation, rad"}),
+    Opt(("--ring-corr",), {"type": positive_float, "metavar": "DEG", "help": "--walls, "
+                           "--method simultaneous: the pixels' errors along the ring are "
+                           "correlated between neighbours as exp(-lag/DEG); widens the "
+                           "intervals (1 measured for extract's points, docs/floorplan.md)"}),
     Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
                              "point is an inlier (default: each point may be an outlier, "
                              "see outlier_prob in points.csv)"}),

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import UsageError
 
-__all__ = ["uses_pixel_cov", "pixel_cov_setting"]
+__all__ = ["uses_pixel_cov", "pixel_cov_setting", "ring_corr_setting"]
 
 
 def uses_pixel_cov(method, data, plan):
@@ -51,3 +51,15 @@ def _warn_loose_along(data, limit_px=2.0):
                       "(docs/images.md): give sds along the ring of about 1 px "
                       "(bayescal extract --along-sd 1)",
                       stacklevel=3)
+
+
+def ring_corr_setting(value, method, plan):
+    """The ``--ring-corr DEG`` of a job: 0 when not given; refused unless the least squares
+    runs on a floor plan (the only fit that takes it)."""
+    if value is None or value == 0:
+        return 0.0
+    if plan is None or method != "simultaneous":
+        raise UsageError("--ring-corr needs --walls and --method simultaneous (the least "
+                         f"squares); got --method {method}"
+                         + ("" if plan is not None else " without --walls"))
+    return float(value)

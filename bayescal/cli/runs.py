@@ -257,7 +257,7 @@ def _least_squares(job):
     if job.plan is not None:
         return bc.calibrate_simultaneous(job.data.pixels, job.plan, sigma_px=job.sigma_px,
                                          prior=job.prior, outliers=job.outliers,
-                                         model=job.model, **kw)
+                                         model=job.model, ring_corr_deg=job.ring_corr, **kw)
     return bc.calibrate_simultaneous(job.data.pixels, job.data.approx_points,
                                      sigma_px=job.sigma_px, sigma_scene=job.sigma_scene,
                                      prior=job.prior, outliers=job.outliers, model=job.model,

@@ -29,6 +29,7 @@ from ..likelihood.outliers import (
     trimmed_mean_square,
 )
 from ..likelihood.plan_misaligned import plan_likelihood
+from ..likelihood.point_algebra import whiten
 from ..likelihood.priors import Prior
 from ..results.calibration import ConvergenceError
 from ..results.floorplan import CHECK_P, N_RESTARTS, check_solution, make_result
@@ -44,7 +45,9 @@ from ..sensor.pose import POSE_NAMES
 from .plan_robust import PlanRetry
 from .schur import _prior_rows, damped_step, safe_inv
 
-__all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS"]
+__all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS", "RING_CORR_DEG",
+           "normal_sensitivity", "ring_corr_cov"]
+RING_CORR_DEG = 1.0     #: the extractor's error correlation scale, deg (docs/floorplan.md)
 
 
 class PlanMapSolution:
@@ -95,7 +98,7 @@ def _normal_equations(lik, prior, g, t, sig):
     gg[o:] += rw / lik.plan.param_sd
     gt = np.einsum("nk,nk->n", Jt, R)
     cost = 0.5 * (np.sum(R * R) + rp @ rp + rw @ rw)
-    return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, R0=R0, k=k, Jp=Jp)
+    return cost, dict(A=A, B=B, C=C, gg=gg, gt=gt, R=R, R0=R0, k=k, Jp=Jp, Jg=Jg, Jt=Jt)
 
 
 def _cost(lik, prior, g, t, sig):
@@ -430,14 +433,15 @@ def _repick(lik, prior, sol, g, t, sig, max_iter):
 def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_sigma=True,
                    max_iter=200, raise_on_failure=True, outliers=True,
                    outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None,
-                   model="aligned"):
+                   model="aligned", ring_corr_deg=0.0):
     """Calibrate from laser pixels and a rough floor plan (MAP + Laplace covariance).
 
     Called by :func:`bayescal.calibrate_simultaneous` when its second argument
     is a :class:`~bayescal.FloorPlan`; parameters as there. ``pixel_cov`` (N, 2, 2),
     px^2: per-point pixel covariances, the noise of pixel i ``sigma_px^2 pixel_cov_i``
     (``sigma_px`` a scale on them; ``None`` infers that scale). ``model="misaligned"``
-    fits the laser cone's tilt and offset too (``result.laser``).
+    fits the laser cone's tilt and offset too (``result.laser``). ``ring_corr_deg``
+    > 0: :func:`ring_corr_cov` added to the covariance.
 
     Returns
     -------
@@ -453,7 +457,10 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
+    if ring_corr_deg > 0:
+        sol.cov = sol.cov + ring_corr_cov(lik, sol, ring_corr_deg)
     result = make_result(lik, sol, absolute_sigma, False, prior=prior)
+    result.extras["ring_corr_deg"] = ring_corr_deg
     result.extras["robust_start"] = bool(getattr(sol, "robust", False))
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
@@ -462,6 +469,30 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
         raise ConvergenceError(f"floor-plan calibration did not converge: {result.message}",
                                result=result)
     return result
+
+
+def normal_sensitivity(lik, sol):
+    """``(P, sd)``: ``P`` (G, N) the first-order change of the MAP ``g`` when pixel ``i``
+    moves 1 px along the ring's normal (radial about the fitted ``(u0, v0)``, outwards):
+    ``-S^-1 h_i``, ``h_i = J_g,i^T dR_i - B_i (J_t,i . dR_i) / C_i`` (the gradient's change,
+    azimuths eliminated; ``dR_i`` the whitened residuals'); ``sd`` (N,) px, the sd the fit
+    gives pixel ``i`` along that normal, ``1 / |dR_i|``."""
+    ne, rad = sol.ne, lik.pixels - sol.g[3:5]
+    w = 1.0 if lik.em_weights is None else np.sqrt(lik.em_weights)[:, None]
+    dR = -whiten(lik.px_white, rad / np.linalg.norm(rad, axis=1, keepdims=True) / sol.sigma_px) * w
+    h = np.einsum("nki,nk->ni", ne["Jg"], dR) - ne["B"] * (
+        np.einsum("nk,nk->n", ne["Jt"], dR) / ne["C"])[:, None]
+    return -(sol.cov @ h.T), 1.0 / np.linalg.norm(dR, axis=1)
+
+
+def ring_corr_cov(lik, sol, scale_deg):
+    """Covariance of ``g`` (G, G) added when the points' errors along the ring's normal, each
+    of its sd, are correlated as ``R = exp(-|t_i - t_j| / scale)``: ``Q (R - I) Q^T``, ``Q =
+    P diag(sd)`` (:func:`normal_sensitivity`; docs/floorplan.md, "Errors correlated ...")."""
+    P, sd = normal_sensitivity(lik, sol)
+    lag = np.abs(np.angle(np.exp(1j * (sol.t[:, None] - sol.t[None]))))
+    C = (P * sd) @ (np.exp(-lag / np.radians(scale_deg)) - np.eye(len(sd))) @ (P * sd).T
+    return 0.5 * (C + C.T)
 
 
 #: the robust retry of :func:`_fit` (:mod:`bayescal.fit.plan_robust`), on this module's steps

@@ -95,7 +95,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                            init=None, estimate_points=True, absolute_sigma=True,
                            max_iter=200, raise_on_failure=True, outliers=True,
                            outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
-                           pixel_cov=None, model="aligned", camera=None, offset_sd=0.0):
+                           pixel_cov=None, model="aligned", camera=None, offset_sd=0.0,
+                           ring_corr_deg=0.0):
     """Calibrate camera and laser cone together from laser pixels and approximate points.
 
     Parameters
@@ -130,6 +131,13 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
         marginalised). Exact when the prior on u0 and v0 is wide (the default); with an
         informative one (``camera=``) only the data's share should grow, so the
         intervals are then conservative (:func:`~bayescal.sensor.parameters.offset_variance`).
+    ring_corr_deg : float, optional
+        With a FloorPlan only: if > 0, the points' pixel errors along the ring's normal are
+        taken as correlated between neighbours, ``exp(-lag / ring_corr_deg)`` in azimuth,
+        each with the sd the fit gives it (an extractor's errors: 1 degree measured,
+        :data:`~bayescal.fit.floorplan.RING_CORR_DEG`; ``docs/floorplan.md``, "Errors
+        correlated along the ring"). The fit is unchanged; its covariance gains the
+        first-order effect (:func:`~bayescal.fit.floorplan.ring_corr_cov`). Default 0.
     prior : dict, optional
         ``{name: scipy.stats frozen distribution}`` for any of the eight
         parameters; the rest keep :func:`~bayescal.likelihood.priors.default_prior`.
@@ -198,6 +206,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     """
     model = check_model(model)
     offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
+    ring_corr_deg = _ring_corr(ring_corr_deg, approx_points)
     prior = as_prior(prior, camera)
     if model == "misaligned" and not estimate_points:
         raise NotImplementedError("model='misaligned' needs the points estimated "
@@ -216,7 +225,7 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
             pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
             absolute_sigma=absolute_sigma, max_iter=max_iter, raise_on_failure=raise_on_failure,
             outliers=outliers, outlier_scale=outlier_scale, outlier_prior=outlier_prior,
-            pixel_cov=pixel_cov, model=model), offset_sd)
+            pixel_cov=pixel_cov, model=model, ring_corr_deg=ring_corr_deg), offset_sd)
     if sigma_scene is _REQUIRED:
         raise TypeError("calibrate_simultaneous() missing required keyword argument "
                         "'sigma_scene' (needed with approximate points)")
@@ -255,6 +264,15 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                                result=result)
     return _with_offset(result, offset_sd)
 
+
+
+def _ring_corr(deg, approx_points):
+    """``deg`` checked: non-negative, and positive only with a FloorPlan."""
+    deg = check_positive(deg, "ring_corr_deg", allow_zero=True)
+    if deg > 0 and not isinstance(approx_points, FloorPlan):
+        raise ValueError(f"ring_corr_deg={deg!r} needs a FloorPlan (the points' azimuths); "
+                         "with approximate points leave it 0")
+    return deg
 
 
 def _with_offset(result, offset_sd):
