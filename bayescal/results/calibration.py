@@ -70,7 +70,7 @@ RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
 #: extras that are plain arrays or numbers and are saved with the result
 _SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "pixels", "approx_points",
-                 "log_evidence", "pixel_cov", "pose_prior_sd", "offset_sd",
+                 "log_evidence", "pixel_cov", "pose_prior_sd", "offset_sd", "ring_corr_deg",
                  # floor plan: the walls the report draws
                  "walls", "wall_covariance", "wall_index", "azimuths",
                  # sequential: what its residual plot needs (bayescal.sequential_residuals)

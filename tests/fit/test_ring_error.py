@@ -60,6 +60,15 @@ def test_ring_corr_widens_the_intervals_and_leaves_the_fit(room):
     assert 0 < grow[0] < grow[1] < grow[2]                    # longer correlation, wider
 
 
+def test_ring_corr_is_saved_with_the_result(room, tmp_path):
+    wide = bc.calibrate_simultaneous(room.pixels, room.floor_plan, sigma_px=0.2,
+                                     outliers=False, ring_corr_deg=2.0)
+    wide.save(tmp_path / "result.json")
+    back = bc.load_result(tmp_path / "result.json")
+    assert back.extras["ring_corr_deg"] == 2.0
+    assert np.allclose(back.covariance_identifiable, wide.covariance_identifiable)
+
+
 def test_the_term_is_none_at_a_tiny_scale_and_a_shared_shift_at_a_huge_one(room):
     lik, _, sol = _fit(room.pixels, room.floor_plan)
     P, sd = fp.normal_sensitivity(lik, sol)
