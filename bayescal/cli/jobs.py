@@ -124,6 +124,7 @@ class ExtractJob:
     out: pathlib.Path
     force: bool = False
     along_sd: float = 5.0
+    radius: tuple | None = None
 
     @classmethod
     def build(cls, **options):
@@ -139,9 +140,10 @@ class ExtractJob:
                 raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
                                  f"from the image's {image.shape}")
         center = None if o["center"] is None else tuple(float(c) for c in o["center"])
+        radius = op.radius_range(o["radius"])
         return cls(image_path=pathlib.Path(o["image"]), image=image, background=bg,
                    center=center, channel=o["channel"], out=pathlib.Path(o["out"]),
-                   force=o["force"], along_sd=float(o["along_sd"]))
+                   force=o["force"], along_sd=float(o["along_sd"]), radius=radius)
 
 
 @dataclass(frozen=True)

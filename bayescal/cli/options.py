@@ -30,8 +30,8 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
 METHODS = ("sequential", "simultaneous", "bayes")
 #: what to try when the extractor finds no plausible laser ring, in the command's options
 EXTRACTION_ADVICE = ("Try a laser-off image of the same view (--background IMAGE), the centre "
-                     "of the mirror's image (--center U V), or the laser's colour channel "
-                     "(--channel 0/1/2)")
+                     "of the mirror's image (--center U V), the ring's radius (--radius LOW "
+                     "HIGH, px), or the laser's colour channel (--channel 0/1/2)")
 #: other names ``--method`` takes: the simultaneous method is a least-squares fit
 _METHOD_ALIASES = {"lsq": "simultaneous", "least-squares": "simultaneous",
                    "least_squares": "simultaneous", "ls": "simultaneous"}
@@ -216,6 +216,15 @@ def finite_float(text):
     if not math.isfinite(v):
         raise _BAD(f"{text!r} is not finite; expected a finite number")
     return v
+
+
+def radius_range(values):
+    """``--radius LOW HIGH`` as ``(low, high)`` px, or None; exit 2 unless LOW < HIGH."""
+    from ..errors import UsageError
+
+    if values is not None and not float(values[0]) < float(values[1]):
+        raise UsageError(f"--radius {values[0]:g} {values[1]:g}: expected LOW < HIGH (px)")
+    return None if values is None else (float(values[0]), float(values[1]))
 
 
 def input_file(text):
@@ -426,6 +435,9 @@ EXTRACT_OPTIONS = (
     Opt(("--center",), {"type": finite_float, "nargs": 2, "metavar": ("U", "V"),
                         "help": "centre of the radial profiles, px (default: fitted to the "
                         "ring)"}),
+    Opt(("--radius",), {"type": nonneg_float, "nargs": 2, "metavar": ("LOW", "HIGH"),
+                        "help": "the ring's radius about the centre lies between LOW and "
+                        "HIGH px (default: searched over the mirror's image)"}),
     Opt(("--channel",), {"type": int, "default": 0, "choices": (0, 1, 2),
                          "help": "colour channel of the laser (0 red, 1 green, 2 blue)"}),
     Opt(("--along-sd",), {"type": positive_float, "default": 5.0, "metavar": "PX",
