@@ -56,7 +56,7 @@ class Scenario:
     range_mm: float = 2500.0
     size: tuple = (800, 600)
     texture: float = 1.0  # contrast of the wall textures (0 plain)
-    laser_dn: float = 110.0  # the ring's median peak above the scene, in output grey levels (8-bit scale)
+    laser_dn: float = 110.0  # the ring's median peak: laser_dn / 255 of the full well, linear
     laser: bool = True
     background: bool = False  # also a laser-off frame
     colour: bool = False
@@ -148,7 +148,7 @@ def true_params(size, rng):
 def make_room(sc, rng):
     """A convex room of 5-7 walls about ``sc.range_mm`` from the axis."""
     k = int(rng.integers(5, 8))
-    ang = np.sort(rng.uniform(0, 2 * np.pi, k))
+    rng.uniform(0, 2 * np.pi, k)  # unused draws, kept: each seed renders the room measured
     # spread the normals so that no two are closer than 35 deg nor further than 110 deg
     ang = np.linspace(0, 2 * np.pi, k, endpoint=False) + rng.uniform(-0.25, 0.25, k) * 2 * np.pi / k
     ang += rng.uniform(0, 2 * np.pi)
@@ -170,7 +170,7 @@ def make_room(sc, rng):
         w = (room.door[0] + 2) % k if room.door else 0
         length = wall_length(room, w)
         s0 = rng.uniform(0.1, 0.5) * length
-        room.cabinet = (w, s0, s0 + 1200.0, 450.0, room.floor + 2300.0)
+        room.cabinet = (w, s0, s0 + 1200.0, 600.0, np.inf)  # shelves up to the ceiling
     for w in range(k):  # posters: one or two per wall, some across the laser's height
         for _ in range(int(rng.integers(1, 3))):
             s0 = rng.uniform(0, max(wall_length(room, w) - 700, 1))
@@ -232,7 +232,7 @@ def trace(room, origin, dirs):
         den = dirs[:, :2] @ n
         with np.errstate(divide="ignore", invalid="ignore"):
             tc = (room.dist[w] - depth - o[:, :2] @ n) / den
-        pc = o + tc[:, None] * dirs
+            pc = o + tc[:, None] * dirs
         tang = room.corners[(w + 1) % k] - room.corners[w]
         tang = tang / np.linalg.norm(tang)
         sc_ = (pc[:, :2] - room.corners[w]) @ tang
@@ -309,7 +309,8 @@ def _wall_texture(kind, s, z, seed, c):
     elif kind == "wood":
         warp = 40.0 * _value_noise(s, z * 0.1, 300.0, seed)
         board = np.floor(s / 120.0)
-        grain = np.sin(2 * np.pi * (s + warp + 37 * board) / 9.0 + 3 * _value_noise(s, z, 60, seed + 2))
+        phase = 3 * _value_noise(s, z, 60, seed + 2)
+        grain = np.sin(2 * np.pi * (s + warp + 37 * board) / 9.0 + phase)
         g = 0.5 + c * (0.12 * grain + 0.08 * _value_noise(s, z, 30.0, seed + 3))
         g = np.where(np.mod(s, 120.0) < 3.0, g * (1 - 0.5 * c), g)
         rgb = g[:, None] * np.array([1.0, 0.7, 0.45])
@@ -320,7 +321,8 @@ def _wall_texture(kind, s, z, seed, c):
         g = 0.6 + c * 0.18 * motif
         rgb = g[:, None] * base / base.mean()
     else:  # paint with slow value noise
-        g = 0.65 + c * (0.06 * _value_noise(s, z, 400.0, seed) + 0.03 * _value_noise(s, z, 20.0, seed + 5))
+        g = 0.65 + c * (0.06 * _value_noise(s, z, 400.0, seed)
+                        + 0.03 * _value_noise(s, z, 20.0, seed + 5))
         rgb = g[:, None] * base / base.mean()
     return rgb
 
@@ -330,12 +332,15 @@ def _poster(s, z, seed, c):
     r = np.random.default_rng(seed)
     rgb = np.tile(np.array([0.9, 0.88, 0.82]), (len(s), 1))
     pic = (z > 250) & (s > 40) & (s < 360)
-    rgb[pic] = r.uniform(0.15, 0.9, 3) * (1 + 0.3 * _value_noise(s[pic], z[pic], 40.0, seed))[:, None]
+    shade = 1 + 0.3 * _value_noise(s[pic], z[pic], 40.0, seed)
+    rgb[pic] = r.uniform(0.15, 0.9, 3) * shade[:, None]
     line = np.floor(z / 16.0)
     in_line = (np.mod(z, 16.0) > 5) & (np.mod(z, 16.0) < 10.5) & (z < 240) & (z > 20)
     glyph = np.floor(s / 7.0)
-    ink = np.random.default_rng(seed + 9).random(8192)[((line * 977 + glyph) % 8192).astype(int)] < 0.55
-    word_gap = np.random.default_rng(seed + 10).random(8192)[((line * 31 + np.floor(s / 45.0)) % 8192).astype(int)] < 0.15
+    glyphs = np.random.default_rng(seed + 9).random(8192)
+    ink = glyphs[((line * 977 + glyph) % 8192).astype(int)] < 0.55
+    gaps = np.random.default_rng(seed + 10).random(8192)
+    word_gap = gaps[((line * 31 + np.floor(s / 45.0)) % 8192).astype(int)] < 0.15
     dark = in_line & ink & ~word_gap & (s > 30) & (s < 500)
     rgb[dark] = 0.9 - c * 0.8
     return rgb
@@ -356,7 +361,7 @@ def lamps(room, sc, rng, params, truth_fn):
         alpha = rng.uniform(-np.pi, np.pi)
         pt = truth_fn(np.array([alpha]))[0]  # the laser on the wall at that azimuth
         out = pt.copy()
-        out[:2] *= 1 - 120.0 / np.hypot(*pt[:2])  # 120 mm in front of the wall, at the ring's height
+        out[:2] *= 1 - 120.0 / np.hypot(*pt[:2])  # 120 mm before the wall, at the ring's height
         pos.append(tuple(out))
         power.append(0.6)
     return np.array(pos).reshape(-1, 3), np.array(power)
@@ -577,7 +582,8 @@ def _scene(params, room, sc, trace_px, lamp_pos, lamp_pow):
         px_per_rad = abs(params.alpha_u) * (params.xi + params.phi) / (1 - np.sin(el_l))
         r_disc = max(2.5, 50.0 / dist * px_per_rad)
         rr = np.hypot(uu - q[0], vv - q[1])
-        blob = 40.0 * pw * (rr <= r_disc) + pw * (1.5 * np.exp(-rr / 6.0) + 0.3 / (1 + (rr / 10) ** 2))
+        halo = 1.5 * np.exp(-rr / 6.0) + 0.3 / (1 + (rr / 10) ** 2)
+        blob = 40.0 * pw * (rr <= r_disc) + pw * halo
         rad += blob[..., None] * LIGHT_RGB
     return rad
 
