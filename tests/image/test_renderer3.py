@@ -114,8 +114,8 @@ KNOWN = {
     ("bright", 2): "the mirror's bright rim (181 px) taken for the ring: extract exits 2",
     ("red", 1): "Bayer colour image: gross 3.2 % (unflagged points in the doorway's gap), "
                 "robust sd 0.258 px",
-    ("red", 2): "calibrated u0 off by 3.6 sd: brick courses shift the peaks of one wall by "
-                "0.09-0.17 px, an error shared along the wall that the covariances do not carry",
+    ("red", 2): "calibrated u0 off by 3.6 sd: extraction errors correlated over runs of 10-30 "
+                "profiles (block means 1.9-3.0x independent), which the covariances do not carry",
     ("furniture", 0): "a floor-to-ceiling shelf not in the floor plan: calibrate exits 1 "
                       "(walls far off the plan)",
 }
