@@ -124,6 +124,7 @@ class ExtractJob:
     out: pathlib.Path
     force: bool = False
     along_sd: float = 5.0
+    radius: tuple | None = None
 
     @classmethod
     def build(cls, **options):
@@ -132,16 +133,16 @@ class ExtractJob:
         inputs = [p for p in (o["image"], o["background"]) if p is not None]
         check_out(o["out"], force=o["force"], inputs=inputs)
         image = _read_image(o["image"], "IMAGE", o["channel"])
-        bg = None
-        if o["background"] is not None:
-            bg = _read_image(o["background"], "--background", o["channel"])
-            if bg.shape != image.shape:
-                raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
-                                 f"from the image's {image.shape}")
+        bg = None if o["background"] is None else _read_image(o["background"], "--background",
+                                                               o["channel"])
+        if bg is not None and bg.shape != image.shape:
+            raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
+                             f"from the image's {image.shape}")
         center = None if o["center"] is None else tuple(float(c) for c in o["center"])
         return cls(image_path=pathlib.Path(o["image"]), image=image, background=bg,
                    center=center, channel=o["channel"], out=pathlib.Path(o["out"]),
-                   force=o["force"], along_sd=float(o["along_sd"]))
+                   force=o["force"], along_sd=float(o["along_sd"]),
+                   radius=op.radius_range(o["radius"]))
 
 
 @dataclass(frozen=True)
@@ -160,8 +161,7 @@ class CalibrateJob:
         ``{name: frozen distribution}`` for all eight names, or None (defaults).
     truth : dict or None
     sigma_px, sigma_scene : the noise given to the method (None = inferred)
-    sigma_px_how, sigma_scene_how : str
-        Where they came from, for the report.
+    sigma_px_how, sigma_scene_how : str (where they came from, for the report)
     image_size : (int, int)
     seed, max_steps, progress, allow_unconverged, out, force, inputs, title, command, ring_corr
     plan : FloorPlan or None

@@ -30,8 +30,8 @@ __all__ = ["Opt", "add_options", "defaults", "seed", "positive_int", "positive_f
 METHODS = ("sequential", "simultaneous", "bayes")
 #: what to try when the extractor finds no plausible laser ring, in the command's options
 EXTRACTION_ADVICE = ("Try a laser-off image of the same view (--background IMAGE), the centre "
-                     "of the mirror's image (--center U V), or the laser's colour channel "
-                     "(--channel 0/1/2)")
+                     "of the mirror's image (--center U V), the ring's radius (--radius LOW "
+                     "HIGH, px), or the laser's colour channel (--channel 0/1/2)")
 #: other names ``--method`` takes: the simultaneous method is a least-squares fit
 _METHOD_ALIASES = {"lsq": "simultaneous", "least-squares": "simultaneous",
                    "least_squares": "simultaneous", "ls": "simultaneous"}
@@ -218,6 +218,14 @@ def finite_float(text):
     return v
 
 
+def radius_range(values):
+    """``--radius LOW HIGH`` as ``(low, high)`` px, or None; exit 2 unless LOW < HIGH."""
+    if values is not None and not float(values[0]) < float(values[1]):
+        from ..errors import UsageError
+        raise UsageError(f"--radius {values[0]:g} {values[1]:g}: expected LOW < HIGH (px)")
+    return None if values is None else (float(values[0]), float(values[1]))
+
+
 def input_file(text):
     """An existing, readable file."""
     p = pathlib.Path(text)
@@ -337,10 +345,9 @@ CALIBRATE_OPTIONS = (
     Opt(("--angle-sd",), {"type": positive_float, "default": 0.01, "metavar": "RAD",
                           "help": "--walls without an angle_sd column: sd of each wall's "
                           "orientation, rad"}),
-    Opt(("--ring-corr",), {"type": positive_float, "metavar": "DEG", "help": "--walls, "
-                           "--method simultaneous: the pixels' errors along the ring are "
-                           "correlated between neighbours as exp(-lag/DEG); widens the "
-                           "intervals (1 measured for extract's points, docs/floorplan.md)"}),
+    Opt(("--ring-corr",), {"type": positive_float, "metavar": "DEG", "help": "--walls, --method "
+        "simultaneous: errors of neighbouring ring points correlated as exp(-lag/DEG); widens "
+        "the intervals (1 measured for extract's points, docs/floorplan.md)"}),
     Opt(("--no-outliers",), {"action": "store_true", "help": "no outlier mixture: every "
                              "point is an inlier (default: each point may be an outlier, "
                              "see outlier_prob in points.csv)"}),
@@ -430,6 +437,9 @@ EXTRACT_OPTIONS = (
     Opt(("--center",), {"type": finite_float, "nargs": 2, "metavar": ("U", "V"),
                         "help": "centre of the radial profiles, px (default: fitted to the "
                         "ring)"}),
+    Opt(("--radius",), {"type": nonneg_float, "nargs": 2, "metavar": ("LOW", "HIGH"),
+                        "help": "the ring's radius about the centre lies between LOW and "
+                        "HIGH px (default: searched over the mirror's image)"}),
     Opt(("--channel",), {"type": int, "default": 0, "choices": (0, 1, 2),
                          "help": "colour channel of the laser (0 red, 1 green, 2 blue)"}),
     Opt(("--along-sd",), {"type": positive_float, "default": 5.0, "metavar": "PX",
@@ -468,9 +478,8 @@ CAMERA_NOISE = ("view-systematic", "per-view", "plain")
 
 CALIBRATE_CAMERA_OPTIONS = (
     Opt(("images",), {"type": input_file, "nargs": "*", "metavar": "IMAGE",
-                      "help": "chessboard images (PGM, PNG, TIFF, JPEG; 8 or 16 bit; any "
-                      "size, all the same), one view each; every one must show the whole "
-                      "board"}),
+                      "help": "chessboard images (PGM, PNG, TIFF, JPEG; 8 or 16 bit; any size, "
+                      "all the same), one view each; every one must show the whole board"}),
     Opt(("--corners",), {"type": input_file, "metavar": "FILE", "help": "instead of images: "
                          "a CSV or NPZ of corners (view, u, v, x, y, z [, cov_uu, cov_uv, "
                          "cov_vv]; docs/cli.md)"}),
@@ -485,8 +494,7 @@ CALIBRATE_CAMERA_OPTIONS = (
                        "help": "noise model of the corners: per-view noise and a per-view "
                        "systematic field (view-systematic), per-view noise only, or one "
                        "noise level (plain least squares)"}),
-    Opt(("--no-cross-validation",), {"action": "store_true", "help": "skip the "
-                                     "cross-validation between halves of the views (it "
-                                     "calibrates twice per split, at most 10 splits)"}),
+    Opt(("--no-cross-validation",), {"action": "store_true", "help": "skip the cross-"
+        "validation between halves of the views (two fits per split, at most 10 splits)"}),
     *_out("camera"),
 )

@@ -40,17 +40,24 @@ def pixel_cov_setting(value, data, method, plan, spx, spx_how):
 
 
 def _warn_loose_along(data, limit_px=2.0):
-    """Warn when --walls meets covariances looser than ``limit_px`` in some direction."""
+    """Warn when --walls meets covariances looser than ``limit_px`` in some direction: most
+    rows (an sd along the ring left at extract's default 5 px), or a few (points the
+    extractor was unsure of, whatever ``--along-sd``)."""
     import warnings
 
-    big = float(np.sqrt(np.max(np.linalg.eigvalsh(data.pixel_cov))))
-    if big > limit_px:
-        warnings.warn(f"{data.pixel_table.path}: with --walls, pixel sds up to {big:.3g} px "
-                      "(along the ring) leave each point's azimuth to the ring's shape; "
-                      "the least squares copes, the posterior may not converge "
+    sd = np.sqrt(np.max(np.linalg.eigvalsh(data.pixel_cov), axis=-1))
+    n_big = int(np.count_nonzero(sd > limit_px))
+    if n_big == 0:
+        return
+    where = f"{data.pixel_table.path}: with --walls, pixel sds up to {np.max(sd):.3g} px"
+    if n_big > len(sd) / 2:
+        warnings.warn(f"{where} (along the ring) leave each point's azimuth to the ring's "
+                      "shape; the least squares copes, the posterior may not converge "
                       "(docs/images.md): give sds along the ring of about 1 px "
-                      "(bayescal extract --along-sd 1)",
-                      stacklevel=3)
+                      "(bayescal extract --along-sd 1)", stacklevel=3)
+    else:
+        warnings.warn(f"{where} in {n_big} of {len(sd)} rows: points the extractor was unsure "
+                      "of; they weigh little in the fit", stacklevel=3)
 
 
 def ring_corr_setting(value, method, plan):

@@ -130,7 +130,7 @@ def run_extract(job, folder):
 
     try:
         lp = extract_laser(job.image, background=job.background, center=job.center,
-                           along_sd=job.along_sd)
+                           along_sd=job.along_sd, radius=job.radius)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
         raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
     p = folder.path
@@ -138,8 +138,9 @@ def run_extract(job, folder):
                        image_size=job.image.shape[1::-1])
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
-    print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd "
-          f"{np.median(lp.sd_normal):.3f} px; wrote {job.out / 'laser.csv'}, "
+    sd = np.nanmedian(lp.sd_normal[~lp.flagged])      # flagged points may have no sd
+    print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd across the "
+          f"ring {sd:.3f} px (unflagged); wrote {job.out / 'laser.csv'}, "
           f"{job.out / 'overlay.png'}")
 
 
