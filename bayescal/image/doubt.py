@@ -136,7 +136,9 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
             raise ExtractionError(
                 f"the ring found (centre ({center[0]:.0f}, {center[1]:.0f}), radius "
                 f"{radius:.0f} px) is far from the mirror's image (centre ({mc[0]:.0f}, "
-                f"{mc[1]:.0f}), radius {mr:.0f} px)", ADVICE)
+                f"{mc[1]:.0f}), radius {mr:.0f} px)",
+                ADVICE + ", or the ring's radius range in px (radius=(low, high)): a bright "
+                "rim of the mirror is a closed ring too")
     if expected is not None and not expected[0] <= radius <= expected[1]:
         raise ExtractionError(f"the ring found has radius {radius:.0f} px, outside the "
                               f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)
