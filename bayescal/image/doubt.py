@@ -10,8 +10,10 @@ from scipy.ndimage import (
     binary_dilation,
     binary_erosion,
     binary_fill_holes,
+    distance_transform_edt,
     gaussian_filter,
     label,
+    maximum,
 )
 
 from ..errors import ExtractionError
@@ -79,7 +81,37 @@ def blob_mask(raw, *, top=None, radius=2, margin=3):
     core = binary_erosion(sat, structure=disc)
     if not core.any():
         return core
-    return binary_dilation(binary_dilation(core, structure=disc), iterations=radius + margin)
+    blobs = binary_dilation(core, structure=disc)
+    if STRIPE:
+        blobs = _without_stripes(blobs)
+    return binary_dilation(blobs, iterations=radius + margin)
+
+
+#: a saturated part no more than STRIPE[0] px from its edge anywhere, with an area over
+#: STRIPE[1] discs of that radius, is a clipped stripe, not a lamp
+STRIPE = (4.0, 6.0)
+
+
+def _without_stripes(blobs):
+    """``blobs`` less its thin, long parts: a laser stripe clipped on a bright wall is a
+    saturated band a few px across and tens along the ring (curved with it); a lamp is
+    round, as wide as it is long."""
+    lab, n = label(blobs)
+    if n == 0:
+        return blobs
+    idx = np.arange(1, n + 1)
+    depth = np.asarray(maximum(distance_transform_edt(blobs), lab, idx))
+    area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+    stripe = (depth <= STRIPE[0]) & (area > STRIPE[1] * np.pi * depth ** 2)
+    # or straight and thin: its second moments' minor sd under 2 px, a quarter of the major
+    vv, uu = np.nonzero(lab)
+    ids = lab[vv, uu]
+    for j in np.nonzero(~stripe & (area >= 10))[0]:
+        m = ids == j + 1
+        minor, major = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(np.stack([uu[m], vv[m]]))),
+                                          0.0))
+        stripe[j] = minor < 2.0 and major > 4.0 * minor
+    return np.concatenate([[False], ~stripe])[lab]
 
 
 def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=0.5,

@@ -111,6 +111,15 @@ def _signal(image, background, channel):
     return img - bg, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
 
 
+def _clip_level(image, background):
+    """The grey level at which an integer image without a laser-off image clips (a clipped
+    stripe's centre is its plateau's middle); None otherwise (a float image's maximum need
+    not be a clip, and a laser-off difference clips at no one level)."""
+    dt = np.asarray(image).dtype
+    return float(np.iinfo(dt).max) if background is None and np.issubdtype(dt, np.integer) \
+        else None
+
+
 def _saturation(image, gray):
     """The grey level at which the sensor saturates: the integer type's top, else the
     image's maximum."""
@@ -203,7 +212,8 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
                                            highpass_px=highpass_px, runner_up=check)
     lp, cand, gates = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
                               along_sd=along_sd, var_floor=var_floor,
-                              flank=background is not None)
+                              flank=background is not None,
+                              top=_clip_level(image, background))
     lp = replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"])
     if check:
         ok = ~lp.flagged
@@ -252,13 +262,13 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False, curve=None, narrow=None):
+            flank=False, curve=None, narrow=None, top=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
-    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow)
+    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow, top)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
     # the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that matches
     good = np.isfinite(chi2)
@@ -299,21 +309,48 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     return lp, gates, curve
 
 
-def _fit(sig, var_img, pol, k, flank, narrow=None):
+def _fit(sig, var_img, pol, k, flank, narrow=None, top=None):
     """The peaks at samples ``k``: a Gaussian through 5 samples, or through the 3 middle
-    ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window)."""
+    ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window);
+    where the peak is clipped at ``top`` (the sensor's saturation), the middle of the
+    clipped run (:func:`_plateau`)."""
     i = np.arange(len(pol.phi))
     base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
         pol.base[i[:, None], k[:, None] + np.arange(-2, 3)[None]]
     out = fit_peaks(sig, var_img, pol.center, pol.phi, pol.radii[k], base, sub=pol.sub)[:6]
-    if narrow is None or not narrow.any():
-        return out
-    j = np.nonzero(narrow)[0]
-    sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
-                    sub=pol.sub)[:6]
-    for a, b in zip(out, sub, strict=True):
-        a[j] = b
+    if narrow is not None and narrow.any():
+        j = np.nonzero(narrow)[0]
+        sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
+                        sub=pol.sub)[:6]
+        for a, b in zip(out, sub, strict=True):
+            a[j] = b
+    if top is not None:
+        _plateau(pol, k, top, out)
     return out
+
+
+def _plateau(pol, k, top, out):
+    """Peaks clipped at the sensor's saturation ``top``: a Gaussian through a flat top is
+    no estimate (1-1.5 px off on a third renderer's clipped stripes); the middle of the run
+    of clipped samples is, to the quantisation of its two ends (variance 1/24 px^2). Updates
+    ``out`` (r, var, height, snr, chi2, width) in place."""
+    v = pol.values
+    n, K = v.shape
+    i = np.arange(n)
+    clipped = v >= top - 0.5
+    on = clipped[i, k]
+    if not on.any():
+        return
+    j = np.arange(1, 16)
+    left = clipped[i[:, None], np.clip(k[:, None] - j[None], 0, K - 1)]
+    right = clipped[i[:, None], np.clip(k[:, None] + j[None], 0, K - 1)]
+    a = np.argmin(np.column_stack([left, np.zeros(n, bool)]), axis=1)      # run lengths
+    b = np.argmin(np.column_stack([right, np.zeros(n, bool)]), axis=1)
+    on &= (a + b >= 1) & (a < 15) & (b < 15)
+    r, var, _, _, chi2, _ = out
+    r[on] = pol.radii[k[on]] + 0.5 * (b[on] - a[on])
+    var[on] = 1.0 / 24.0
+    chi2[on] = np.nan
 
 
 #: the ring's robust curve (:func:`~bayescal.image.ring.ring_curve`): half-window (deg), and
