@@ -303,7 +303,8 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
         var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
-    cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
+    cov = _covariances(pol.phi, r, r_s, np.minimum(np.nan_to_num(var_r, nan=VAR_MAX), VAR_MAX),
+                       along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
     return lp, gates, curve
@@ -351,6 +352,12 @@ def _plateau(pol, k, top, out):
     r[on] = pol.radii[k[on]] + 0.5 * (b[on] - a[on])
     var[on] = 1.0 / 24.0
     chi2[on] = np.nan
+
+
+#: the largest radial variance given, px^2 (sd 10 px: a point that unsure carries nothing;
+#: unbounded, flagged rows carried 1e4-1e16 px^2 whose 2x2 covariances rounded to
+#: indefinite)
+VAR_MAX = 100.0
 
 
 #: the ring's robust curve (:func:`~bayescal.image.ring.ring_curve`): half-window (deg), and

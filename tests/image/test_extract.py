@@ -223,3 +223,14 @@ def test_a_clipped_stripe_is_not_a_lamp():
     arc = (phi > 0.05) & (phi < np.pi / 3 - 0.05)
     assert np.mean(~lp.flagged[arc]) >= 0.9
     assert np.max(np.abs(e[arc & ~lp.flagged])) <= 1.0
+
+
+def test_every_covariance_is_finite_and_bounded():
+    # a flagged point's radial variance was unbounded (up to 3e14 px^2 on this image; 1e16
+    # in a third renderer's, where the 2x2 covariance rounded to indefinite and its sd to
+    # NaN): now at most 100 px^2 across the ring, along_sd^2 along it
+    img, _ = render(2500, 1, n_lamps=4, ghost=0.3)
+    lp = bc.extract_laser(img, check=False)
+    ev = np.linalg.eigvalsh(lp.covariance)
+    assert np.all(np.isfinite(lp.covariance)) and np.all(np.isfinite(lp.sd_normal))
+    assert ev.min() > 0 and ev.max() <= 100.0 * (1 + 1e-9)
