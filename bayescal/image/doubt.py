@@ -90,19 +90,24 @@ def blob_mask(raw, *, top=None, radius=2, margin=3):
 #: a saturated part no more than STRIPE[0] px from its edge anywhere, with an area over
 #: STRIPE[1] discs of that radius, is a clipped stripe, not a lamp
 STRIPE = (4.0, 6.0)
+#: and so is any part no more than STRIPE_THIN px from its edge (at most ~6 px across): a
+#: clipped stripe broken by speckle into short pieces (a third renderer's bright rooms;
+#: kept there 0.879 -> 0.965, and renderer2's lamp rooms 0.78-0.93 -> 0.83-0.94)
+STRIPE_THIN = 3.0
 
 
 def _without_stripes(blobs):
-    """``blobs`` less its thin, long parts: a laser stripe clipped on a bright wall is a
-    saturated band a few px across and tens along the ring (curved with it); a lamp is
-    round, as wide as it is long."""
+    """``blobs`` less its thin parts: a laser stripe clipped on a bright wall is a
+    saturated band a few px across and tens along the ring (curved with it), or short
+    pieces of one; a lamp is round, as wide as it is long, and wider."""
     lab, n = label(blobs)
     if n == 0:
         return blobs
     idx = np.arange(1, n + 1)
     depth = np.asarray(maximum(distance_transform_edt(blobs), lab, idx))
     area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
-    stripe = (depth <= STRIPE[0]) & (area > STRIPE[1] * np.pi * depth ** 2)
+    stripe = ((depth <= STRIPE[0]) & (area > STRIPE[1] * np.pi * depth ** 2)) | \
+        (depth <= STRIPE_THIN)
     # or straight and thin: its second moments' minor sd under 2 px, a quarter of the major
     vv, uu = np.nonzero(lab)
     ids = lab[vv, uu]
