@@ -10,8 +10,10 @@ from scipy.ndimage import (
     binary_dilation,
     binary_erosion,
     binary_fill_holes,
+    distance_transform_edt,
     gaussian_filter,
     label,
+    maximum,
 )
 
 from ..errors import ExtractionError
@@ -79,7 +81,42 @@ def blob_mask(raw, *, top=None, radius=2, margin=3):
     core = binary_erosion(sat, structure=disc)
     if not core.any():
         return core
-    return binary_dilation(binary_dilation(core, structure=disc), iterations=radius + margin)
+    blobs = binary_dilation(core, structure=disc)
+    if STRIPE:
+        blobs = _without_stripes(blobs)
+    return binary_dilation(blobs, iterations=radius + margin)
+
+
+#: a saturated part no more than STRIPE[0] px from its edge anywhere, with an area over
+#: STRIPE[1] discs of that radius, is a clipped stripe, not a lamp
+STRIPE = (4.0, 6.0)
+#: and so is any part no more than STRIPE_THIN px from its edge (at most ~6 px across): a
+#: clipped stripe broken by speckle into short pieces (a third renderer's bright rooms;
+#: kept there 0.879 -> 0.965, and renderer2's lamp rooms 0.78-0.93 -> 0.83-0.94)
+STRIPE_THIN = 3.0
+
+
+def _without_stripes(blobs):
+    """``blobs`` less its thin parts: a laser stripe clipped on a bright wall is a
+    saturated band a few px across and tens along the ring (curved with it), or short
+    pieces of one; a lamp is round, as wide as it is long, and wider."""
+    lab, n = label(blobs)
+    if n == 0:
+        return blobs
+    idx = np.arange(1, n + 1)
+    depth = np.asarray(maximum(distance_transform_edt(blobs), lab, idx))
+    area = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+    stripe = ((depth <= STRIPE[0]) & (area > STRIPE[1] * np.pi * depth ** 2)) | \
+        (depth <= STRIPE_THIN)
+    # or straight and thin: its second moments' minor sd under 2 px, a quarter of the major
+    vv, uu = np.nonzero(lab)
+    ids = lab[vv, uu]
+    for j in np.nonzero(~stripe & (area >= 10))[0]:
+        m = ids == j + 1
+        minor, major = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(np.stack([uu[m], vv[m]]))),
+                                          0.0))
+        stripe[j] = minor < 2.0 and major > 4.0 * minor
+    return np.concatenate([[False], ~stripe])[lab]
 
 
 def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=0.5,
@@ -136,7 +173,9 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
             raise ExtractionError(
                 f"the ring found (centre ({center[0]:.0f}, {center[1]:.0f}), radius "
                 f"{radius:.0f} px) is far from the mirror's image (centre ({mc[0]:.0f}, "
-                f"{mc[1]:.0f}), radius {mr:.0f} px)", ADVICE)
+                f"{mc[1]:.0f}), radius {mr:.0f} px)",
+                ADVICE + ", or the ring's radius range in px (radius=(low, high)): a bright "
+                "rim of the mirror is a closed ring too")
     if expected is not None and not expected[0] <= radius <= expected[1]:
         raise ExtractionError(f"the ring found has radius {radius:.0f} px, outside the "
                               f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)

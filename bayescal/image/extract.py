@@ -111,6 +111,15 @@ def _signal(image, background, channel):
     return img - bg, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
 
 
+def _clip_level(image, background):
+    """The grey level at which an integer image without a laser-off image clips (a clipped
+    stripe's centre is its plateau's middle); None otherwise (a float image's maximum need
+    not be a clip, and a laser-off difference clips at no one level)."""
+    dt = np.asarray(image).dtype
+    return float(np.iinfo(dt).max) if background is None and np.issubdtype(dt, np.integer) \
+        else None
+
+
 def _saturation(image, gray):
     """The grey level at which the sensor saturates: the integer type's top, else the
     image's maximum."""
@@ -201,9 +210,11 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
             raise ValueError(f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
     cands, gains, mirror = ring_candidates(sig, raw, sat, center, radius, n_azimuth=n_azimuth,
                                            highpass_px=highpass_px, runner_up=check)
-    lp, cand = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
-                       along_sd=along_sd, var_floor=var_floor, flank=background is not None)
-    lp = replace(lp, offset_sd=offset_sd)
+    lp, cand, gates = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
+                              along_sd=along_sd, var_floor=var_floor,
+                              flank=background is not None,
+                              top=_clip_level(image, background))
+    lp = replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"])
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
@@ -219,43 +230,45 @@ def _choose(cands, sig, var_img, **kw):
     :data:`CHOICE_MARGIN`."""
     first = best = None
     for cand in cands:
-        lp, _ = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
+        lp, gates = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
         if first is None:
-            first = best = lp, cand
+            first = best = lp, cand, gates
             continue
         d = np.min(np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T), axis=0)
         if np.mean(d > 1.5) >= 0.1 and \
                 np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN:
-            best = lp, cand
+            best = lp, cand, gates
     return best
 
 
 def _rescued(sig, var_img, pol, k, on_blob, **kw):
     """:func:`_points`, then once more where points lay off the ring's robust curve, each
     such profile's peak looked for within 1 px of the curve (where a rail or a text bar
-    crossing the stripe took the path, the laser's own peak is often still there)."""
+    crossing the stripe took the path, the laser's own peak is often still there), and
+    where they stay off, a third time with a Gaussian through 3 samples instead of 5 (a
+    ridge 2 px away pulls a 5-sample fit: the curve ran within 0.5 px of the truth at
+    63-81 % of such points, which were 1-3 px off it, on renderer2's lamp rooms)."""
     lp, gates, curve = _points(sig, var_img, pol, k, on_blob, **kw)
-    off = gates["off curve"]
+    off = gates["off curve"] | gates["astray"]
     if not off.any():
         return lp, gates
     near = ridge_near(pol, np.rint(np.nan_to_num(curve, nan=0.0) - pol.radii[0]).astype(int), 1)
-    lp, gates, _ = _points(sig, var_img, pol, np.where(off, near, k), on_blob, curve=curve,
-                           **kw)
+    k = np.where(off, near, k)
+    lp, gates, _ = _points(sig, var_img, pol, k, on_blob, curve=curve, **kw)
+    still = off & (gates["off curve"] | gates["astray"])
+    if still.any():
+        lp, gates, _ = _points(sig, var_img, pol, k, on_blob, curve=curve, narrow=still, **kw)
     return lp, gates
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False, curve=None):
+            flank=False, curve=None, narrow=None, top=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
-    offs = np.arange(-2, 3)
-    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
-        pol.base[i[:, None], k[:, None] + offs[None]]
-    r, var_r, height, snr, chi2, width, _ = fit_peaks(sig, var_img, pol.center, pol.phi,
-                                                         pol.radii[k], base, sub=pol.sub)
+    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow, top)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
     # the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that matches
     good = np.isfinite(chi2)
@@ -275,7 +288,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     sd_loc = np.sqrt(np.minimum(var_r, median_filter(var_r, size=win, mode="wrap")))
     gates = {"off ring": np.abs(r - r_s) > np.clip(4 * sd_loc, gate_px, 3 * gate_px),
              "off model": np.abs(r - pol.model) > np.maximum(3 * gate_px, 5 * sd_loc),
-             "faint": snr < min_snr, "no peak": ~np.isfinite(r),
+             "faint": snr < max(min_snr, DIM * _median(snr)), "no peak": ~np.isfinite(r),
              "misfit": chi2 > 30 * scale, "glint": height > 4 * h_s, "wide": width > 3 * w_s,
              "lamp": on_blob[i, k], "edge": ~pol.valid[i, k]}
     flagged = np.logical_or.reduce(list(gates.values()))
@@ -284,20 +297,109 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     curve = ring_curve(pol.phi, r, ~flagged, half_deg=CURVE[0]) if curve is None else curve
     gates["off curve"] = np.abs(np.nan_to_num(r - curve)) > np.maximum(CURVE[1] * gate_px,
                                                                        CURVE[2] * sd_loc)
+    gates["astray"] = _astray(r - curve, flagged, sd_loc, gate_px)
     flagged = flagged | gates["off curve"]
     var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
     if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
         var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
-    cov = _covariances(pol.phi, r, r_s, var_r, along_sd)
+    cov = _covariances(pol.phi, r, r_s, np.minimum(np.nan_to_num(var_r, nan=VAR_MAX), VAR_MAX),
+                       along_sd)
     lp = LaserPixels(pixels=pix, covariance=cov, snr=snr, flagged=flagged,
                      center=np.asarray(pol.center, dtype=float))
     return lp, gates, curve
 
 
+def _fit(sig, var_img, pol, k, flank, narrow=None, top=None):
+    """The peaks at samples ``k``: a Gaussian through 5 samples, or through the 3 middle
+    ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window);
+    where the peak is clipped at ``top`` (the sensor's saturation), the middle of the
+    clipped run (:func:`_plateau`)."""
+    i = np.arange(len(pol.phi))
+    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
+        pol.base[i[:, None], k[:, None] + np.arange(-2, 3)[None]]
+    out = fit_peaks(sig, var_img, pol.center, pol.phi, pol.radii[k], base, sub=pol.sub)[:6]
+    if narrow is not None and narrow.any():
+        j = np.nonzero(narrow)[0]
+        sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
+                        sub=pol.sub)[:6]
+        for a, b in zip(out, sub, strict=True):
+            a[j] = b
+    if top is not None:
+        _plateau(pol, k, top, out)
+    return out
+
+
+def _plateau(pol, k, top, out):
+    """Peaks clipped at the sensor's saturation ``top``: a Gaussian through a flat top is
+    no estimate (1-1.5 px off on a third renderer's clipped stripes); the middle of the run
+    of clipped samples is, to the quantisation of its two ends (variance 1/24 px^2). Updates
+    ``out`` (r, var, height, snr, chi2, width) in place."""
+    v = pol.values
+    n, K = v.shape
+    i = np.arange(n)
+    clipped = v >= top - 0.5
+    on = clipped[i, k]
+    if not on.any():
+        return
+    j = np.arange(1, 16)
+    left = clipped[i[:, None], np.clip(k[:, None] - j[None], 0, K - 1)]
+    right = clipped[i[:, None], np.clip(k[:, None] + j[None], 0, K - 1)]
+    a = np.argmin(np.column_stack([left, np.zeros(n, bool)]), axis=1)      # run lengths
+    b = np.argmin(np.column_stack([right, np.zeros(n, bool)]), axis=1)
+    on &= (a + b >= 1) & (a < 15) & (b < 15)
+    r, var, _, _, chi2, _ = out
+    r[on] = pol.radii[k[on]] + 0.5 * (b[on] - a[on])
+    var[on] = 1.0 / 24.0
+    chi2[on] = np.nan
+
+
+#: the largest radial variance given, px^2 (sd 10 px: a point that unsure carries nothing;
+#: unbounded, flagged rows carried 1e4-1e16 px^2 whose 2x2 covariances rounded to
+#: indefinite)
+VAR_MAX = 100.0
+
+
+#: a point whose peak is below DIM x the ring's median SNR is "faint" too: where the laser
+#: goes through a doorway or onto black, the path bridges the gap on noise (a third
+#: renderer's doorways: SNR 3-6 against 60-160 on the ring; gross 1.2-2.8 % -> 0-1.8 %
+#: in its 8-bit rooms, kept 0-0.6 % lower; on ours kept up to 0.9 % lower, renderer2's
+#: unchanged)
+DIM = 0.07
+
+
+def _median(x):
+    """Median of the finite values of ``x`` (0 if none)."""
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if len(x) else 0.0
+
+
 #: the ring's robust curve (:func:`~bayescal.image.ring.ring_curve`): half-window (deg), and
 #: its gate at max(CURVE[1] gate_px, CURVE[2] sd)
 CURVE = (30.0, 1.0, 4.0)
+
+#: the strict off-curve gate ("astray", see _astray): max(ASTRAY[0] gate_px, ASTRAY[1] x the
+#: ring's robust scatter about its curve, min(CURVE[2] sd, gate_px))
+ASTRAY = (0.8, 3.0)
+
+
+def _astray(res, flagged, sd_loc, gate_px):
+    """Points off the ring's robust curve by more than a point of the ring strays: farther
+    than ``ASTRAY[0] gate_px`` and ``ASTRAY[1]`` robust sds of the kept points' residuals
+    ``res`` (px), and farther than their own gate's ``CURVE[2]`` sds, capped at ``gate_px``.
+
+    Without a laser-off image, texture under the stripe and a rail or a text bar beside it
+    inflate a point's own sd where they also pull it off the ring: a gate in the point's
+    own sds lets them through (1-3 px off the truth, 2-4 % of the points of renderer2's
+    rooms, measured), a gate in the ring's scatter does not. Its flags do not count when
+    candidate rings are compared: a laser ring near the camera strays from its curve more
+    than a rail does."""
+    res = np.nan_to_num(res, nan=np.inf)
+    kept = ~flagged & np.isfinite(res)
+    s_ring = 1.4826 * float(np.median(np.abs(res[kept]))) if kept.any() else 0.0
+    gate = np.maximum(max(ASTRAY[0] * gate_px, ASTRAY[1] * s_ring),
+                      np.minimum(CURVE[2] * sd_loc, gate_px))
+    return np.isfinite(res) & (np.abs(res) > gate)
 
 
 #: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a

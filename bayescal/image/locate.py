@@ -21,6 +21,14 @@ __all__ = ["RingCandidate", "ring_candidates", "PRIOR_TOL", "PRIOR_SLOPE"]
 #: PRIOR_TOL[1] x the ridge's sd about the circle), then PRIOR_SLOPE sds per px
 PRIOR_TOL = (3.0, 4.0)
 PRIOR_SLOPE = 1.0
+#: px by which a saturated blob (a lamp) is grown without a laser-off image, its halo's
+#: reach (of the points 3 px out that it flagged on renderer2's lamp rooms, 30-93 % lay
+#: within 0.5 px of the truth; 2 instead of 3 keeps 2 % more of the azimuths, measured)
+BLOB_MARGIN = 2
+#: the outer fraction of the mirror's disc left out of the search: a bright rim (a
+#: thin annulus 6-7 % inside the disc's fitted edge, in a third renderer's images) is a
+#: closed ring too; the laser rings of our and renderer2's rooms reach 38 % and 67 % of it
+RIM = 0.15
 
 
 def _start(sig, raw, sat, center, radius, highpass_px):
@@ -37,7 +45,7 @@ def _start(sig, raw, sat, center, radius, highpass_px):
     r_max = float(np.max(np.hypot(*(corners - c).T)))
     band = radius
     if mirror is not None:          # the mirror's rim is a circle too: stay inside it
-        r_max = min(r_max, mirror[1] - max(8.0, 0.05 * mirror[1]))
+        r_max = min(r_max, mirror[1] - max(8.0, RIM * mirror[1]))
     # the ring lies outside the camera's own dark reflection (its edge is a circle too)
     core = dark_core(raw, c, mirror[1] if mirror is not None else 0.5 * min(H, W))
     if core > 0:                    # past the high-pass's reach from its edge
@@ -125,7 +133,7 @@ def ring_candidates(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, ru
     """
     # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
-                      margin=1 if sig is not raw else 3)
+                      margin=1 if sig is not raw else BLOB_MARGIN)
     c0, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
     pol, _, _, _, gains = _locate(sig, blobs, c0, r_max, n=360, highpass_px=highpass_px,
                                   r_band=band0, runner_up=runner_up)

@@ -73,7 +73,7 @@ def _pixel_variance(dmu_ds, idx, wts, var_img):
 
 
 def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
-    """A Gaussian through 5 radial samples (1 px apart) around ``r_pk`` per azimuth.
+    """A Gaussian through 5 (or 3) radial samples (1 px apart) around ``r_pk`` per azimuth.
 
     Parameters
     ----------
@@ -82,8 +82,9 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     center : ndarray, shape (2,)
     phi, r_pk : ndarray, shape (N,)
         Azimuth (rad) and the integer-grid radius of the highest sample (px).
-    base : ndarray, shape (N, 5)
-        Baseline under the 5 samples (the profile's running median), subtracted.
+    base : ndarray, shape (N, 5) or (N, 3)
+        Baseline under the 5 (or 3) samples (the profile's running median), subtracted;
+        its width sets the number of samples.
     sub : sequence of float, optional
         Azimuth offsets (rad) of the rays averaged into each sample.
 
@@ -91,31 +92,38 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     -------
     r, var, height, snr, chi2, width : ndarray, shape (N,)
         Peak radius (px), its variance (px^2), height above the baseline (grey levels),
-        height over the noise sd, misfit per degree of freedom (2), Gaussian sd (px).
-    dmu_ds : ndarray, shape (N, 5)
+        height over the noise sd, misfit per degree of freedom (2; NaN with 3 samples,
+        which a Gaussian fits exactly), Gaussian sd (px); the variance is at most the
+        square of the number of samples.
+    dmu_ds : ndarray, shape (N, 5) or (N, 3)
         Derivative of the peak radius with respect to each sample, px per grey level.
     """
-    radii = (r_pk[:, None] + _OFFS[None, :])[..., None]
+    offs = np.arange(base.shape[1]) - base.shape[1] // 2
+    radii = (r_pk[:, None] + offs[None, :])[..., None]
     ang = phi[:, None, None] + np.asarray(sub, float)[None, None, :]
     vals, idx, wts = bilinear(img, center[0] + np.cos(ang) * radii, center[1] + np.sin(ang) * radii)
     m = len(sub)
     vals = vals.mean(axis=-1)                                  # (N, 5)
-    idx = idx.reshape(len(phi), 5, 4 * m, 2)
-    wts = wts.reshape(len(phi), 5, 4 * m) / m
+    idx = idx.reshape(len(phi), len(offs), 4 * m, 2)
+    wts = wts.reshape(len(phi), len(offs), 4 * m) / m
     s = np.maximum(vals - base, 1e-3 * np.maximum(np.abs(vals - base).max(1), 1)[:, None])
     # weighted quadratic fit of log(s) against x, weights s^2 (Caruana)
-    X = np.stack([np.ones(5), _OFFS, _OFFS ** 2], axis=1).astype(float)
+    X = np.stack([np.ones(len(offs)), offs, offs ** 2], axis=1).astype(float)
     XtW = X.T[None] * (s ** 2)[:, None, :]
     Q = np.linalg.solve(XtW @ X[None], XtW)                    # (N, 3, 5)
     coef = Q @ np.log(s)[..., None]
     b, c = coef[:, 1, 0], np.minimum(coef[:, 2, 0], -1e-3)
-    mu = np.clip(-b / (2 * c), -2.0, 2.0)
+    mu = np.clip(-b / (2 * c), offs[0], offs[-1])
     dmu_dy = -Q[:, 1] / (2 * c[:, None]) + b[:, None] * Q[:, 2] / (2 * c[:, None] ** 2)
     dmu_ds = dmu_dy / s
-    var = _pixel_variance(dmu_ds, idx, wts, var_img)
+    # a flat or one-sided profile (c near 0) has a peak clipped to the samples' span and a
+    # linearised variance without bound: the span's square bounds it
+    var = np.minimum(_pixel_variance(dmu_ds, idx, wts, var_img), float(len(offs)) ** 2)
     resid = (np.log(s) - (X[None] @ coef)[..., 0]) * s
     sd_s = np.sqrt(np.sum(wts ** 2 * var_img[idx[..., 0], idx[..., 1]], axis=-1))
-    chi2 = np.sum((resid / sd_s) ** 2, axis=1) / 2.0
-    height = vals[:, 2] - base[:, 2]
-    snr = height / sd_s[:, 2]
+    dof = len(offs) - 3
+    chi2 = np.sum((resid / sd_s) ** 2, axis=1) / dof if dof else np.full(len(phi), np.nan)
+    j = len(offs) // 2
+    height = vals[:, j] - base[:, j]
+    snr = height / sd_s[:, j]
     return r_pk + mu, var, height, snr, chi2, np.sqrt(-0.5 / c), dmu_ds
