@@ -114,8 +114,9 @@ def test_no_ring_exits_2_and_writes_nothing(tmp_path, capsys):
 KNOWN = {
     ("red", 1): "Bayer colour image: robust sd 0.257-0.260 px, the colour mosaic's "
                 "interpolation (the doorway-gap points are now flagged)",
-    ("red", 2): "calibrated u0 off by 3.6 sd: extraction errors correlated over runs of 10-30 "
-                "profiles (block means 1.9-3.0x independent), which the covariances do not carry",
+    ("red", 2): "Bayer colour image: robust sd 0.260 px; and the calibrated u0 3.4 sd off "
+                "(3.6 before): extraction errors correlated over runs of 10-30 profiles "
+                "(block means 1.9-3.0x independent), which the covariances do not carry",
     ("furniture", 0): "a floor-to-ceiling shelf not in the floor plan: calibrate exits 1 "
                       "(walls far off the plan)",
 }
