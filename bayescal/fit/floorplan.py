@@ -457,8 +457,7 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     lik, prior, sol = _fit(pixels, plan, sigma_px=sigma_px, prior=prior, init=init,
                            max_iter=max_iter, outliers=outliers, outlier_scale=outlier_scale,
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
-    if ring_corr_deg > 0:
-        sol.cov = sol.cov + ring_corr_cov(lik, sol, ring_corr_deg)
+    sol.cov = sol.cov + ring_corr_cov(lik, sol, ring_corr_deg) if ring_corr_deg > 0 else sol.cov
     result = make_result(lik, sol, absolute_sigma, False, prior=prior)
     result.extras["ring_corr_deg"] = ring_corr_deg
     result.extras["robust_start"] = bool(getattr(sol, "robust", False))
@@ -472,11 +471,10 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
 
 
 def normal_sensitivity(lik, sol):
-    """``(P, sd)``: ``P`` (G, N) the first-order change of the MAP ``g`` when pixel ``i``
-    moves 1 px along the ring's normal (radial about the fitted ``(u0, v0)``, outwards):
-    ``-S^-1 h_i``, ``h_i = J_g,i^T dR_i - B_i (J_t,i . dR_i) / C_i`` (the gradient's change,
-    azimuths eliminated; ``dR_i`` the whitened residuals'); ``sd`` (N,) px, the sd the fit
-    gives pixel ``i`` along that normal, ``1 / |dR_i|``."""
+    """``(P, sd)``: ``P`` (G, N) the first-order change of the MAP ``g`` per px pixel ``i``
+    moves along the ring's normal (radial about the fitted ``(u0, v0)``): ``-S^-1 h_i``, ``h_i
+    = J_g,i^T dR_i - B_i (J_t,i . dR_i) / C_i`` (azimuths eliminated; ``dR_i`` the whitened
+    residuals' change); ``sd`` (N,) px, pixel ``i``'s sd along that normal, ``1 / |dR_i|``."""
     ne, rad = sol.ne, lik.pixels - sol.g[3:5]
     w = 1.0 if lik.em_weights is None else np.sqrt(lik.em_weights)[:, None]
     dR = -whiten(lik.px_white, rad / np.linalg.norm(rad, axis=1, keepdims=True) / sol.sigma_px) * w
@@ -489,9 +487,11 @@ def ring_corr_cov(lik, sol, scale_deg):
     """Covariance of ``g`` (G, G) added when the points' errors along the ring's normal, each
     of its sd, are correlated as ``R = exp(-|t_i - t_j| / scale)``: ``Q (R - I) Q^T``, ``Q =
     P diag(sd)`` (:func:`normal_sensitivity`; docs/floorplan.md, "Errors correlated ...")."""
-    P, sd = normal_sensitivity(lik, sol)
-    lag = np.abs(np.angle(np.exp(1j * (sol.t[:, None] - sol.t[None]))))
-    C = (P * sd) @ (np.exp(-lag / np.radians(scale_deg)) - np.eye(len(sd))) @ (P * sd).T
+    Q, t, C, s = np.multiply(*normal_sensitivity(lik, sol)), sol.t, 0.0, np.radians(scale_deg)
+    for a in range(0, len(t), 1024):       # (1024, N) rows at a time: no N x N array
+        K = np.exp(-np.abs(np.angle(np.exp(1j * (t[a:a + 1024, None] - t[None])))) / s)
+        K[np.arange(len(K)), a + np.arange(len(K))] -= 1.0
+        C = C + Q[:, a:a + 1024] @ K @ Q.T
     return 0.5 * (C + C.T)
 
 
