@@ -115,9 +115,8 @@ def _clip_level(image, background):
     """The grey level at which an integer image without a laser-off image clips (a clipped
     stripe's centre is its plateau's middle); None otherwise (a float image's maximum need
     not be a clip, and a laser-off difference clips at no one level)."""
-    dt = np.asarray(image).dtype
-    return float(np.iinfo(dt).max) if background is None and np.issubdtype(dt, np.integer) \
-        else None
+    integer = np.issubdtype(np.asarray(image).dtype, np.integer)
+    return _saturation(image, None) if background is None and integer else None
 
 
 def _saturation(image, gray):
