@@ -9,7 +9,6 @@ accuracy are in ``docs/images.md``.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -18,7 +17,7 @@ from scipy.ndimage import median_filter
 from .._validation import check_positive
 from .doubt import check_ring
 from .locate import ring_candidates
-from .noise import noise_model, ring_scatter_scale
+from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
 from .peak import fit_peaks, flank_baseline
 from .read import as_gray, read_image
 from .ring import circle_fit, ridge_near, ring_curve
@@ -275,7 +274,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     var_r = np.maximum(scale, np.nan_to_num(chi2, nan=scale)) * var_r + var_floor
     win = max(5, n // 36) | 1
     r_s = median_filter(r, size=win, mode="wrap")
-    var_r = var_r * _scatter_factor(r - r_s, var_r, 3 * win)
+    var_r = var_r * scatter_factor(r - r_s, var_r, 3 * win)
     # profiles closer than 2 px share pixels: their errors correlate, so each counts for
     # less (the ring's information per px of its length stays that of 2-px spacing)
     var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
@@ -298,7 +297,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
                                                                        CURVE[2] * sd_loc)
     gates["astray"] = _astray(r - curve, flagged, sd_loc, gate_px)
     flagged = flagged | gates["off curve"]
-    var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
+    var_r = var_r + clutter_variance(pol, k, var_img, width, height)
     if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
         var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
@@ -399,59 +398,6 @@ def _astray(res, flagged, sd_loc, gate_px):
     gate = np.maximum(max(ASTRAY[0] * gate_px, ASTRAY[1] * s_ring),
                       np.minimum(CURVE[2] * sd_loc, gate_px))
     return np.isfinite(res) & (np.abs(res) > gate)
-
-
-#: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a
-#: laser-off image on both renderers' textured rooms (0.8 and 1.0 move it by about +-0.05)
-CLUTTER_K = 0.9
-
-
-def _clutter_variance(pol, k, var_img, width, height):
-    """Radial variance (px^2) from wall texture under the stripe, per profile.
-
-    Texture at the beam's scale that the running median leaves in the high-passed profile
-    moves the peak by about its slope times ``width^2 / height``, an error shared by
-    neighbouring profiles that no scatter about the smoothed ring can reveal. Its size comes
-    from five high-passed samples either side of the peak, past the stripe's tails: their
-    robust mean square beyond the pixel noise's variance (zero where only noise is left, as
-    with a laser-off image), times ``(CLUTTER_K width / height)^2``.
-    """
-    n, K = pol.high.shape
-    i = np.arange(n)[:, None]
-    # five samples each side, past the stripe's own tails: from 3 of its sds (at least 3
-    # px) or 1 px past where the profile first drops below a tenth of the peak (a
-    # saturated, flat-topped stripe is wider than its fitted sd says), at most 12 px
-    j = np.arange(1, 13)
-    below = [pol.high[i, np.clip(k[:, None] + sgn * j[None], 0, K - 1)]
-             < 0.1 * np.maximum(height, 0.0)[:, None] for sgn in (-1, 1)]
-    tail = np.maximum(*[np.where(b.any(1), np.argmax(b, axis=1) + 2, 13) for b in below])
-    start = np.clip(np.maximum(np.ceil(3 * np.nan_to_num(width, nan=1.0)), tail), 3, 12)
-    side = np.arange(5)[None, :] + start[:, None]
-    cand = np.clip(k[:, None] + np.concatenate([-side, side], axis=1), 0, K - 1).astype(int)
-    rr = pol.radii[cand]
-    H, W = var_img.shape
-    u = np.clip(np.rint(pol.center[0] + np.cos(pol.phi)[:, None] * rr).astype(int), 0, W - 1)
-    v = np.clip(np.rint(pol.center[1] + np.sin(pol.phi)[:, None] * rr).astype(int), 0, H - 1)
-    # a robust mean square (the median over 0.455, a chi-square's with 1 degree of freedom):
-    # a narrow ridge beside the stripe (a ghost, a lamp's edge) does not move its peak
-    ms = np.median(pol.high[i, cand] ** 2, axis=1) / 0.455
-    excess = np.maximum(ms - var_img[v, u].mean(1), 0.0)
-    w = np.nan_to_num(np.maximum(width, 0.5), nan=0.5)
-    return np.nan_to_num(excess * (CLUTTER_K * w / np.maximum(height, 1e-3)) ** 2, nan=0.0)
-
-
-def _scatter_factor(d, var, win):
-    """Factor (>= 1) on the variances where the points scatter about the smoothed ring more
-    than their variances say (texture under the stripe, a misfit the noise model misses):
-    the running median of ``d^2 / var`` over ``win`` azimuths over 0.455, the median of a
-    chi-square with 1 degree of freedom."""
-    q = np.where(np.abs(d) < 3.0, d ** 2 / var, np.nan)
-    n, h = len(q), win // 2
-    idx = (np.arange(n)[:, None] + np.arange(-h, h + 1)[None]) % n
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(q[idx], axis=1)
-    return np.maximum(1.0, np.nan_to_num(med, nan=1.0) / 0.455)
 
 
 #: file suffixes read as images (a reconstruction frame given as an image is extracted)
