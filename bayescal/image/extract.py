@@ -12,14 +12,14 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import gaussian_filter, median_filter
 
 from .._validation import check_positive
-from .doubt import check_ring
+from .doubt import check_colour, check_ring
 from .locate import ring_candidates
 from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
 from .peak import fit_peaks, flank_baseline
-from .read import as_gray, read_image
+from .read import as_gray, demosaiced_blur, read_image
 from .ring import circle_fit, ridge_near, ring_curve
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
@@ -98,16 +98,21 @@ def _signal(image, background, channel):
     variance per pixel, the raw image and its saturation level."""
     img = as_gray(image, channel=channel, name="image")
     top = _saturation(image, img)
+    # a Bayer channel is smoothed (saturation is judged on the pixels as read)
+    blur = demosaiced_blur(image, img)
+    smooth = (lambda x: gaussian_filter(x, blur)) if blur else (lambda x: x)
     if background is None:
-        return img, noise_model(img)(img), img, img >= top
+        s = smooth(img)
+        return s, noise_model(s)(s), img, img >= top
     bg = as_gray(background, channel=channel, name="background")
     if bg.shape != img.shape:
         raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
     # var(on - off) = var(on) + var(off) = 2a + b (on + off): fitted on the difference, where
     # the texture cancels, against the mean level of the two exposures
-    mean = 0.5 * (img + bg)
-    var_img = noise_model(img - bg, levels=mean)(mean)
-    return img - bg, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
+    on, off = smooth(img), smooth(bg)
+    mean = 0.5 * (on + off)
+    var_img = noise_model(on - off, levels=mean)(mean)
+    return on - off, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
 
 
 def _clip_level(image, background):
@@ -152,7 +157,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         Centre of the radial profiles ``(u, v)`` px (e.g. ``(u0, v0)``); by default the
         centre of the mirror's image, then of a circle fitted to the ring found.
     channel : int, optional
-        Colour channel of the laser in a colour image (0 red, 1 green, 2 blue).
+        Colour channel of the laser in a colour image (0 red, 1 green, 2 blue). A channel
+        demosaiced from a Bayer mosaic (every other pixel the mean of its neighbours) is
+        smoothed first (:func:`~bayescal.image.read.demosaiced_blur`).
     n_azimuth : int, optional
         Number of profiles; default one per 2 px of the ring's circumference.
     min_snr : float, optional
@@ -185,7 +192,8 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     ------
     ExtractionError
         No ring, most of it flagged (fewer than half of the azimuths kept), a path that
-        does not close, or a ring off the mirror's image or outside ``radius``.
+        does not close, a ring off the mirror's image or outside ``radius``, or in a colour
+        image a ring as bright in another channel as in ``channel`` (no laser).
 
     Examples
     --------
@@ -218,6 +226,7 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
         check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=cand.closure,
                    gains=gains)
+        check_colour(image, background, channel, lp.pixels[ok], lp.center)
     return lp
 
 
@@ -427,7 +436,7 @@ def laser_frame(path, *, center=None):
     from ..errors import ExtractionError, UsageError
 
     try:
-        lp = extract_laser(read_image(path), center=center)
+        lp = extract_laser(read_image(path, raw=True), center=center)
     except ExtractionError as exc:          # the reason only: the advice names Python's arguments
         raise UsageError(f"{path}: cannot extract laser pixels ({exc.reason})") from None
     except (OSError, ValueError) as exc:
