@@ -191,7 +191,8 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
 
 def _ridge_heights(gray, center, pixels):
     """Height (grey levels) of a ridge at each of ``pixels`` (N, 2) over the lower of its two
-    flanks (the means of the samples 3-5 px either side along the ray from ``center``)."""
+    flanks (the means of the samples 3-5 px either side along the ray from ``center``), and
+    the value at the pixel."""
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
@@ -201,13 +202,28 @@ def _ridge_heights(gray, center, pixels):
         return bilinear(gray, q[:, 0], q[:, 1])[0]
 
     flanks = [np.mean([at(r + sgn * s) for s in (3, 4, 5)], axis=0) for sgn in (-1, 1)]
-    return at(r) - np.minimum(*flanks)
+    peak = at(r)
+    return peak - np.minimum(*flanks), peak
+
+
+def _grey(image, img, channel):
+    """Whether a colour image is a grey one stored in colour: its other channels within 2
+    grey levels (of 255 over the type's range) of ``channel`` at 99 % of the pixels or
+    more (exactly equal, or a grey JPEG's chroma noise)."""
+    dt = np.asarray(image).dtype
+    top = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(img.max())
+    tol = 2.0 * max(top, 1e-12) / 255.0
+    return all(np.mean(np.abs(img[..., k] - img[..., channel]) <= tol) >= 0.99
+               for k in range(3) if k != channel)
 
 
 def check_colour(image, background, channel, pixels, center):
     """Raise :class:`~bayescal.errors.ExtractionError` if the ring found in a colour image
     is as bright in another colour channel as in the laser's (a white rail, a door frame, a
-    light edge: a laser lives in one channel); nothing for a grey image.
+    light edge: a laser lives in one channel); nothing for a grey image, or a grey image
+    stored in colour (every channel within 2 grey levels of the laser's at 99 % of the
+    pixels). Points where the laser's channel clips are left out (its height there is a
+    lower bound), and with fewer than 12 left nothing is judged.
 
     Parameters
     ----------
@@ -222,14 +238,19 @@ def check_colour(image, background, channel, pixels, center):
         Centre of the radial profiles, px.
     """
     img = np.asarray(image, dtype=float)
-    if img.ndim != 3 or img.shape[2] < 3 or len(pixels) < 12:
+    if img.ndim != 3 or img.shape[2] < 3 or len(pixels) < 12 or _grey(image, img, channel):
         return
+    c = np.asarray(center, dtype=float)
+    dt = np.asarray(image).dtype
+    if np.issubdtype(dt, np.integer):   # where the laser's channel clips, its height is unknown
+        pixels = pixels[_ridge_heights(img[..., channel], c, pixels)[1] < np.iinfo(dt).max - 0.5]
+        if len(pixels) < 12:
+            return
     if background is not None:          # a grey laser-off image is taken for every channel
         bg = np.asarray(background, dtype=float)
         img = img - (bg[..., :3] if bg.ndim == 3 else bg[..., None])
-    c = np.asarray(center, dtype=float)
-    own = float(np.median(_ridge_heights(img[..., channel], c, pixels)))
-    other = max(float(np.median(_ridge_heights(img[..., k], c, pixels)))
+    own = float(np.median(_ridge_heights(img[..., channel], c, pixels)[0]))
+    other = max(float(np.median(_ridge_heights(img[..., k], c, pixels)[0]))
                 for k in range(3) if k != channel)
     if own <= 0 or other > COLOUR_RATIO * own:
         raise ExtractionError(

@@ -54,10 +54,19 @@ def test_check_colour_on_a_synthetic_ring():
     check_colour(red, None, 0, pts, np.array([100.0, 100.0]))        # a red laser: passes
     check_colour(red[..., 0], None, 0, pts, np.array([100.0, 100.0]))  # grey: not judged
     white = np.stack([base + ring] * 3, -1)
+    check_colour(white, None, 0, pts, np.array([100.0, 100.0]))      # a grey image in RGB
+    white[..., 1:] += np.random.default_rng(0).normal(0, 5, (200, 200, 2))
     with pytest.raises(bc.ExtractionError, match="colour channel 0"):
         check_colour(white, None, 0, pts, np.array([100.0, 100.0]))
     with pytest.raises(bc.ExtractionError, match="colour channel 1"):   # the wrong channel
         check_colour(red, None, 1, pts, np.array([100.0, 100.0]))
+    # a red laser clipped in its channel (a 5-px plateau), 0.8 of it in green: not judged
+    # where red clips
+    band = 300.0 * (np.abs(np.hypot(xx - 100, yy - 100) - 60) < 2.5)
+    clip = np.stack([base + band, base + 0.8 * band, base], -1).clip(0, 255)
+    check_colour(clip.astype(np.uint8), None, 0, pts, np.array([100.0, 100.0]))
+    with pytest.raises(bc.ExtractionError, match="colour channel 0"):    # as float: judged
+        check_colour(clip, None, 0, pts, np.array([100.0, 100.0]))
 
 
 def test_colour_image_without_a_laser_exits_2(tmp_path, capsys):
@@ -71,3 +80,11 @@ def test_colour_image_without_a_laser_exits_2(tmp_path, capsys):
     assert code == 2, err
     assert "colour channel 0" in err and "--channel" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_grey_image_stored_in_colour_is_extracted():
+    # identical channels: no mosaic, no colour to judge; the same points as the grey image
+    img, _ = bc.render_image(P, bc.room_walls(2500), rng=0)
+    grey, rgb = bc.extract_laser(img), bc.extract_laser(np.stack([img] * 3, -1))
+    assert np.array_equal(grey.pixels, rgb.pixels)
+    assert np.array_equal(grey.flagged, rgb.flagged)
