@@ -12,8 +12,10 @@ __all__ = ["as_gray", "read_image", "mosaic_ratio", "demosaiced_blur", "MOSAIC_R
 #: a colour channel is taken as demosaiced from a Bayer mosaic when, along rows and along
 #: columns, every other pixel is the mean of its two neighbours: its mean squared miss is at
 #: most MOSAIC_RATIO of the other half's (bilinearly demosaiced red channels of two
-#: renderers: 0.02-0.12; full colour renders of two others: 0.90-1.00)
-MOSAIC_RATIO = 0.4
+#: renderers: 0.02-0.12, 0.45-0.46 once saved as JPEG at quality 92 without chroma
+#: subsampling, 0.70-0.73 at 88 with it; full colour renders of two others: 0.90-1.00,
+#: 0.95-1.00 as JPEG at quality 75-95)
+MOSAIC_RATIO = 0.6
 #: Gaussian sd (px) that smooths such a channel: its laser stripe is sampled every 2 px and
 #: interpolated, so a 5-sample peak fit errs with the stripe's phase on that lattice (robust
 #: sd 0.24-0.26 px on a third renderer's Bayer images, 0.19-0.22 px smoothed by 0.8 px; 0.5
