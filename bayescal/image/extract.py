@@ -15,7 +15,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter, median_filter
 
 from .._validation import check_positive
-from .doubt import check_colour, check_ring
+from .doubt import check_colour, check_ring, colour_heights, is_white
 from .locate import ring_candidates
 from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
 from .peak import fit_peaks, flank_baseline
@@ -219,7 +219,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     lp, cand, gates = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
                               along_sd=along_sd, var_floor=var_floor,
                               flank=background is not None,
-                              top=_clip_level(image, background))
+                              top=_clip_level(image, background),
+                              colour=lambda px, c: colour_heights(image, background, channel,
+                                                                  px, c, min_points=6))
     lp = replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"])
     if check:
         ok = ~lp.flagged
@@ -230,20 +232,30 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     return lp
 
 
-def _choose(cands, sig, var_img, **kw):
+def _choose(cands, sig, var_img, *, colour=None, **kw):
     """The candidate ring whose points the extractor trusts most: the first (the circle most
     azimuths share), unless another ring that runs apart from it (1.5 px or more away over
     a tenth of its azimuths or more) keeps a larger fraction of its azimuths by more than
-    :data:`CHOICE_MARGIN`."""
+    :data:`CHOICE_MARGIN`. In a colour image (``colour(pixels, center)``: the points' colour
+    heights, :func:`~bayescal.image.doubt.colour_heights`) where the two run apart, the one
+    whose points there are the laser's colour wins over one whose points are white,
+    whatever the fractions."""
     first = best = None
     for cand in cands:
         lp, gates = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
         if first is None:
             first = best = lp, cand, gates
             continue
-        d = np.min(np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T), axis=0)
-        if np.mean(d > 1.5) >= 0.1 and \
-                np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN:
+        d = np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T)
+        apart, apart_f = np.min(d, axis=0) > 1.5, np.min(d, axis=1) > 1.5
+        if np.mean(apart) < 0.1:
+            continue
+        lead = np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN
+        if colour is not None:
+            w = is_white(colour(lp.pixels[apart & ~lp.flagged], lp.center))
+            w_f = is_white(colour(first[0].pixels[apart_f & ~first[0].flagged], lp.center))
+            lead = (lead and not (w and w_f is False)) or (w is False and w_f)
+        if lead:
             best = lp, cand, gates
     return best
 
