@@ -107,7 +107,7 @@ def _read_image(path, option, channel):
     from ..image.read import read_image
 
     try:
-        return read_image(path, channel=channel)
+        return read_image(path, channel=channel, raw=True)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"{option} {path}: {exc}") from None
 
@@ -135,7 +135,7 @@ class ExtractJob:
         image = _read_image(o["image"], "IMAGE", o["channel"])
         bg = None if o["background"] is None else _read_image(o["background"], "--background",
                                                                o["channel"])
-        if bg is not None and bg.shape != image.shape:
+        if bg is not None and bg.shape[:2] != image.shape[:2]:
             raise UsageError(f"--background {o['background']}: shape {bg.shape} differs "
                              f"from the image's {image.shape}")
         center = None if o["center"] is None else tuple(float(c) for c in o["center"])

@@ -130,7 +130,7 @@ def run_extract(job, folder):
 
     try:
         lp = extract_laser(job.image, background=job.background, center=job.center,
-                           along_sd=job.along_sd, radius=job.radius)
+                           along_sd=job.along_sd, radius=job.radius, channel=job.channel)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
         raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
     p = folder.path

@@ -17,9 +17,18 @@ from scipy.ndimage import (
 )
 
 from ..errors import ExtractionError
+from .peak import bilinear
 from .ring import circle_fit
 
-__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "ADVICE"]
+__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
+           "is_white", "ADVICE",
+           "COLOUR_RATIO"]
+
+#: a laser lives in one colour channel: the ring's median height in the brightest other
+#: channel is at most COLOUR_RATIO of its height in the laser's channel, or it is no laser
+#: of that colour (red lasers of three renderers: 0.06-0.18 over 22 images; a white rail
+#: returned as the ring in red images without a laser: 0.93-1.38 over 6)
+COLOUR_RATIO = 0.5
 
 #: what to try when an extraction is implausible (the command line says it with its options)
 ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
@@ -179,3 +188,112 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
     if expected is not None and not expected[0] <= radius <= expected[1]:
         raise ExtractionError(f"the ring found has radius {radius:.0f} px, outside the "
                               f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)
+
+
+def _ridge_heights(gray, center, pixels):
+    """Height (grey levels) of a ridge at each of ``pixels`` (N, 2) over the lower of its two
+    flanks (the means of the samples 3-5 px either side along the ray from ``center``), and
+    the value at the pixel."""
+    d = pixels - center
+    r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+    e = d / r[:, None]
+
+    def at(rr):
+        q = center + e * rr[:, None]
+        return bilinear(gray, q[:, 0], q[:, 1])[0]
+
+    flanks = [np.mean([at(r + sgn * s) for s in (3, 4, 5)], axis=0) for sgn in (-1, 1)]
+    peak = at(r)
+    return peak - np.minimum(*flanks), peak
+
+
+def _grey(image, img, channel):
+    """Whether a colour image is a grey one stored in colour: its other channels within 2
+    grey levels (of 255 over the type's range) of ``channel`` at 99 % of the pixels or
+    more (exactly equal, or a grey JPEG's chroma noise)."""
+    dt = np.asarray(image).dtype
+    top = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(img.max())
+    tol = 2.0 * max(top, 1e-12) / 255.0
+    return all(np.mean(np.abs(img[..., k] - img[..., channel]) <= tol) >= 0.99
+               for k in range(3) if k != channel)
+
+
+def colour_heights(image, background, channel, pixels, center, *, min_points=12):
+    """Median ridge height of the points in the laser's colour channel and in the brightest
+    other channel (grey levels, over the lower flank 3-5 px away along the ray), or None
+    where colour tells nothing: a grey image, a grey image stored in colour (every channel
+    within 2 grey levels of the laser's at 99 % of the pixels), or fewer than
+    ``min_points`` points where the laser's channel does not clip (a clipped height is a
+    lower bound).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C)
+    background : ndarray or None
+        The laser-off image, subtracted channel by channel when given.
+    channel : int
+        The laser's channel.
+    pixels : ndarray, shape (N, 2)
+        Points on the ring, px.
+    center : ndarray, shape (2,)
+        Centre of the radial profiles, px.
+    min_points : int, optional
+
+    Returns
+    -------
+    tuple of float or None
+        ``(own, other)``.
+    """
+    img = np.asarray(image, dtype=float)
+    if img.ndim != 3 or img.shape[2] < 3 or len(pixels) < min_points \
+            or _grey(image, img, channel):
+        return None
+    c = np.asarray(center, dtype=float)
+    dt = np.asarray(image).dtype
+    if np.issubdtype(dt, np.integer):   # where the laser's channel clips, its height is unknown
+        pixels = pixels[_ridge_heights(img[..., channel], c, pixels)[1] < np.iinfo(dt).max - 0.5]
+        if len(pixels) < min_points:
+            return None
+    if background is not None:          # a grey laser-off image is taken for every channel
+        bg = np.asarray(background, dtype=float)
+        img = img - (bg[..., :3] if bg.ndim == 3 else bg[..., None])
+    own = float(np.median(_ridge_heights(img[..., channel], c, pixels)[0]))
+    other = max(float(np.median(_ridge_heights(img[..., k], c, pixels)[0]))
+                for k in range(3) if k != channel)
+    return own, other
+
+
+def is_white(heights):
+    """Whether ``(own, other)`` from :func:`colour_heights` is no laser of that colour (the
+    other channel above :data:`COLOUR_RATIO` of the laser's); None when colour tells
+    nothing."""
+    return None if heights is None else bool(heights[0] <= 0 or
+                                             heights[1] > COLOUR_RATIO * heights[0])
+
+
+def check_colour(image, background, channel, pixels, center):
+    """Raise :class:`~bayescal.errors.ExtractionError` if the ring found in a colour image
+    is as bright in another colour channel as in the laser's (a white rail, a door frame, a
+    light edge: a laser lives in one channel); nothing where :func:`colour_heights` says
+    colour tells nothing (a grey image, a grey image stored in colour, a ring clipped in
+    the laser's channel).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C)
+    background : ndarray or None
+        The laser-off image, subtracted channel by channel when given.
+    channel : int
+        The laser's channel.
+    pixels : ndarray, shape (N, 2)
+        The ring's unflagged points, px.
+    center : ndarray, shape (2,)
+        Centre of the radial profiles, px.
+    """
+    h = colour_heights(image, background, channel, pixels, center)
+    if is_white(h):
+        raise ExtractionError(
+            f"the ring found is no brighter in the laser's colour channel {channel} than in the "
+            f"others (median height {h[0]:.1f} against {h[1]:.1f} grey levels; a laser's other "
+            f"channels reach at most {COLOUR_RATIO:g} of it): a white rail or edge, not a laser",
+            ADVICE)

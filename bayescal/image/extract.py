@@ -9,18 +9,17 @@ accuracy are in ``docs/images.md``.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import gaussian_filter, median_filter
 
 from .._validation import check_positive
-from .doubt import check_ring
+from .doubt import check_colour, check_ring, colour_heights, is_white
 from .locate import ring_candidates
-from .noise import noise_model, ring_scatter_scale
+from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
 from .peak import fit_peaks, flank_baseline
-from .read import as_gray, read_image
+from .read import as_gray, demosaiced_blur, read_image
 from .ring import circle_fit, ridge_near, ring_curve
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
@@ -99,16 +98,21 @@ def _signal(image, background, channel):
     variance per pixel, the raw image and its saturation level."""
     img = as_gray(image, channel=channel, name="image")
     top = _saturation(image, img)
+    # a Bayer channel is smoothed (saturation is judged on the pixels as read)
+    blur = demosaiced_blur(image, img)
+    smooth = (lambda x: gaussian_filter(x, blur)) if blur else (lambda x: x)
     if background is None:
-        return img, noise_model(img)(img), img, img >= top
+        s = smooth(img)
+        return s, noise_model(s)(s), img, img >= top
     bg = as_gray(background, channel=channel, name="background")
     if bg.shape != img.shape:
         raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
     # var(on - off) = var(on) + var(off) = 2a + b (on + off): fitted on the difference, where
     # the texture cancels, against the mean level of the two exposures
-    mean = 0.5 * (img + bg)
-    var_img = noise_model(img - bg, levels=mean)(mean)
-    return img - bg, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
+    on, off = smooth(img), smooth(bg)
+    mean = 0.5 * (on + off)
+    var_img = noise_model(on - off, levels=mean)(mean)
+    return on - off, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
 
 
 def _clip_level(image, background):
@@ -153,7 +157,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
         Centre of the radial profiles ``(u, v)`` px (e.g. ``(u0, v0)``); by default the
         centre of the mirror's image, then of a circle fitted to the ring found.
     channel : int, optional
-        Colour channel of the laser in a colour image (0 red, 1 green, 2 blue).
+        Colour channel of the laser in a colour image (0 red, 1 green, 2 blue). A channel
+        demosaiced from a Bayer mosaic (every other pixel the mean of its neighbours) is
+        smoothed first (:func:`~bayescal.image.read.demosaiced_blur`).
     n_azimuth : int, optional
         Number of profiles; default one per 2 px of the ring's circumference.
     min_snr : float, optional
@@ -186,7 +192,8 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     ------
     ExtractionError
         No ring, most of it flagged (fewer than half of the azimuths kept), a path that
-        does not close, or a ring off the mirror's image or outside ``radius``.
+        does not close, a ring off the mirror's image or outside ``radius``, or in a colour
+        image a ring as bright in another channel as in ``channel`` (no laser).
 
     Examples
     --------
@@ -212,30 +219,43 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     lp, cand, gates = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,
                               along_sd=along_sd, var_floor=var_floor,
                               flank=background is not None,
-                              top=_clip_level(image, background))
+                              top=_clip_level(image, background),
+                              colour=lambda px, c: colour_heights(image, background, channel,
+                                                                  px, c, min_points=6))
     lp = replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"])
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
         check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=cand.closure,
                    gains=gains)
+        check_colour(image, background, channel, lp.pixels[ok], lp.center)
     return lp
 
 
-def _choose(cands, sig, var_img, **kw):
+def _choose(cands, sig, var_img, *, colour=None, **kw):
     """The candidate ring whose points the extractor trusts most: the first (the circle most
     azimuths share), unless another ring that runs apart from it (1.5 px or more away over
     a tenth of its azimuths or more) keeps a larger fraction of its azimuths by more than
-    :data:`CHOICE_MARGIN`."""
+    :data:`CHOICE_MARGIN`. In a colour image (``colour(pixels, center)``: the points' colour
+    heights, :func:`~bayescal.image.doubt.colour_heights`) where the two run apart, the one
+    whose points there are the laser's colour wins over one whose points are white,
+    whatever the fractions."""
     first = best = None
     for cand in cands:
         lp, gates = _rescued(sig, var_img, cand.pol, cand.k, cand.on_blob, **kw)
         if first is None:
             first = best = lp, cand, gates
             continue
-        d = np.min(np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T), axis=0)
-        if np.mean(d > 1.5) >= 0.1 and \
-                np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN:
+        d = np.hypot(*(lp.pixels[:, None, :] - first[0].pixels[None]).T)
+        apart, apart_f = np.min(d, axis=0) > 1.5, np.min(d, axis=1) > 1.5
+        if np.mean(apart) < 0.1:
+            continue
+        lead = np.mean(~lp.flagged) > np.mean(~best[0].flagged) + CHOICE_MARGIN
+        if colour is not None:
+            w = is_white(colour(lp.pixels[apart & ~lp.flagged], lp.center))
+            w_f = is_white(colour(first[0].pixels[apart_f & ~first[0].flagged], lp.center))
+            lead = (lead and not (w and w_f is False)) or (w is False and w_f)
+        if lead:
             best = lp, cand, gates
     return best
 
@@ -275,7 +295,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     var_r = np.maximum(scale, np.nan_to_num(chi2, nan=scale)) * var_r + var_floor
     win = max(5, n // 36) | 1
     r_s = median_filter(r, size=win, mode="wrap")
-    var_r = var_r * _scatter_factor(r - r_s, var_r, 3 * win)
+    var_r = var_r * scatter_factor(r - r_s, var_r, 3 * win)
     # profiles closer than 2 px share pixels: their errors correlate, so each counts for
     # less (the ring's information per px of its length stays that of 2-px spacing)
     var_r = var_r * np.maximum(1.0, 2.0 / np.maximum(r * 2 * np.pi / n, 1e-3))
@@ -298,7 +318,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
                                                                        CURVE[2] * sd_loc)
     gates["astray"] = _astray(r - curve, flagged, sd_loc, gate_px)
     flagged = flagged | gates["off curve"]
-    var_r = var_r + _clutter_variance(pol, k, var_img, width, height)
+    var_r = var_r + clutter_variance(pol, k, var_img, width, height)
     if flank:       # on a laser-off difference: the ring's scatter, neighbours left out
         var_r = var_r * ring_scatter_scale(r, var_r, ~flagged & np.isfinite(r))
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
@@ -401,59 +421,6 @@ def _astray(res, flagged, sd_loc, gate_px):
     return np.isfinite(res) & (np.abs(res) > gate)
 
 
-#: the clutter variance's factor (see _clutter_variance), measured: z rms 1.1-1.3 without a
-#: laser-off image on both renderers' textured rooms (0.8 and 1.0 move it by about +-0.05)
-CLUTTER_K = 0.9
-
-
-def _clutter_variance(pol, k, var_img, width, height):
-    """Radial variance (px^2) from wall texture under the stripe, per profile.
-
-    Texture at the beam's scale that the running median leaves in the high-passed profile
-    moves the peak by about its slope times ``width^2 / height``, an error shared by
-    neighbouring profiles that no scatter about the smoothed ring can reveal. Its size comes
-    from five high-passed samples either side of the peak, past the stripe's tails: their
-    robust mean square beyond the pixel noise's variance (zero where only noise is left, as
-    with a laser-off image), times ``(CLUTTER_K width / height)^2``.
-    """
-    n, K = pol.high.shape
-    i = np.arange(n)[:, None]
-    # five samples each side, past the stripe's own tails: from 3 of its sds (at least 3
-    # px) or 1 px past where the profile first drops below a tenth of the peak (a
-    # saturated, flat-topped stripe is wider than its fitted sd says), at most 12 px
-    j = np.arange(1, 13)
-    below = [pol.high[i, np.clip(k[:, None] + sgn * j[None], 0, K - 1)]
-             < 0.1 * np.maximum(height, 0.0)[:, None] for sgn in (-1, 1)]
-    tail = np.maximum(*[np.where(b.any(1), np.argmax(b, axis=1) + 2, 13) for b in below])
-    start = np.clip(np.maximum(np.ceil(3 * np.nan_to_num(width, nan=1.0)), tail), 3, 12)
-    side = np.arange(5)[None, :] + start[:, None]
-    cand = np.clip(k[:, None] + np.concatenate([-side, side], axis=1), 0, K - 1).astype(int)
-    rr = pol.radii[cand]
-    H, W = var_img.shape
-    u = np.clip(np.rint(pol.center[0] + np.cos(pol.phi)[:, None] * rr).astype(int), 0, W - 1)
-    v = np.clip(np.rint(pol.center[1] + np.sin(pol.phi)[:, None] * rr).astype(int), 0, H - 1)
-    # a robust mean square (the median over 0.455, a chi-square's with 1 degree of freedom):
-    # a narrow ridge beside the stripe (a ghost, a lamp's edge) does not move its peak
-    ms = np.median(pol.high[i, cand] ** 2, axis=1) / 0.455
-    excess = np.maximum(ms - var_img[v, u].mean(1), 0.0)
-    w = np.nan_to_num(np.maximum(width, 0.5), nan=0.5)
-    return np.nan_to_num(excess * (CLUTTER_K * w / np.maximum(height, 1e-3)) ** 2, nan=0.0)
-
-
-def _scatter_factor(d, var, win):
-    """Factor (>= 1) on the variances where the points scatter about the smoothed ring more
-    than their variances say (texture under the stripe, a misfit the noise model misses):
-    the running median of ``d^2 / var`` over ``win`` azimuths over 0.455, the median of a
-    chi-square with 1 degree of freedom."""
-    q = np.where(np.abs(d) < 3.0, d ** 2 / var, np.nan)
-    n, h = len(q), win // 2
-    idx = (np.arange(n)[:, None] + np.arange(-h, h + 1)[None]) % n
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(q[idx], axis=1)
-    return np.maximum(1.0, np.nan_to_num(med, nan=1.0) / 0.455)
-
-
 #: file suffixes read as images (a reconstruction frame given as an image is extracted)
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
 
@@ -481,7 +448,7 @@ def laser_frame(path, *, center=None):
     from ..errors import ExtractionError, UsageError
 
     try:
-        lp = extract_laser(read_image(path), center=center)
+        lp = extract_laser(read_image(path, raw=True), center=center)
     except ExtractionError as exc:          # the reason only: the advice names Python's arguments
         raise UsageError(f"{path}: cannot extract laser pixels ({exc.reason})") from None
     except (OSError, ValueError) as exc:

@@ -13,7 +13,15 @@ from __future__ import annotations
 import numpy as np
 
 from .doubt import blob_mask, dark_core, mirror_disc
-from .ring import circle_fit, polar_image, ridge_near, ring_model, ring_path, ring_priors
+from .ring import (
+    PATH_CAP,
+    circle_fit,
+    polar_image,
+    ridge_near,
+    ring_model,
+    ring_path,
+    ring_priors,
+)
 
 __all__ = ["RingCandidate", "ring_candidates", "PRIOR_TOL", "PRIOR_SLOPE"]
 
@@ -83,7 +91,11 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         far = np.maximum(np.abs(pol.radii - prior[0]) - prior[1], 0.0)
         pol.score = pol.score - PRIOR_SLOPE * far[None, :]
     pol.free = free
-    path, closure, gain = ring_path(pol.score)
+    # the cost comes off the capped score: a ridge scoring past the cap would otherwise pay
+    # for its detour out of its excess (a rail 20 px off the ring over a quarter of it,
+    # scoring 10-30 sds, tied with the ring's capped 8)
+    path, closure, gain = ring_path(pol.score if prior is None else
+                                    np.minimum(free, PATH_CAP) - PRIOR_SLOPE * far[None, :])
     gains = (gain, np.nan)
     if runner_up:
         off = pol.score.copy()

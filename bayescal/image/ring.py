@@ -20,6 +20,9 @@ from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 __all__ = ["PolarImage", "polar_image", "ridge_near", "ring_path", "circle_fit", "ring_model",
            "ring_priors", "ring_curve"]
 
+#: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
+PATH_CAP = 8.0
+
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
 
@@ -107,12 +110,13 @@ def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
     return PolarImage(img, center, phi, radii, highpass_px)
 
 
-def ring_path(score, *, cap=8.0, jump=2, penalty=0.5):
+def ring_path(score, *, cap=None, jump=2, penalty=0.5):
     """The closed ridge through ``score`` (n azimuths x K radii) by dynamic programming.
 
     The path takes one radius index per azimuth, moves at most ``jump`` indices between
     neighbouring azimuths at a cost of ``penalty`` per index, and maximises the sum of
-    ``min(score, cap)`` (a lamp cannot buy a detour). Closure: the recursion runs over two
+    ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`).
+    Closure: the recursion runs over two
     laps and the path is read off the middle lap, far from both ends.
 
     Returns
@@ -126,7 +130,7 @@ def ring_path(score, *, cap=8.0, jump=2, penalty=0.5):
         Mean capped score per azimuth along the path, net of its step penalties.
     """
     n, K = score.shape
-    S = np.minimum(score, cap)
+    S = np.minimum(score, PATH_CAP if cap is None else cap)
     offs = np.arange(-jump, jump + 1)
     pen = penalty * np.abs(offs)
     buf = np.empty((len(offs), K))
