@@ -17,7 +17,7 @@ _LOG2PI = np.log(2 * np.pi)
 
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
            "whiten", "whiten_pair", "marginal_sum", "marginal_block",
-           "point_columns", "draw_proposal", "draw_log_density"]
+           "point_columns", "draw_proposal", "draw_log_density", "outlier_probs"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -364,6 +364,16 @@ def _fused_newton(p, c, x, y, w, n_iter, keep_cp):
     np.subtract(rr, m, out=m)
     return {"x": x, "y": y, "m": m, "det": det, "d": (d0, d1), "parts": parts,
             "C": (C00, C01, C11)}
+
+
+def outlier_probs(lik, psi, q0, n_iter):
+    """:meth:`~bayescal.likelihood.points.LaserLikelihood.outlier_prob` (W, N) of the aligned
+    cone in the fused passes of :func:`marginal_sum` (the same Gauss-Newton steps from
+    ``q0`` (N, 2) or (W, N, 2), the same mixture); ``None`` where they do not apply
+    (:func:`_fused_applies`) or without the mixture."""
+    if not (getattr(lik, "outliers", False) and _fused_applies(lik, psi, q0)):
+        return None
+    return _fused_call(lik, psi, q0, n_iter, True)[0][3]
 
 
 def _noise_setup(lik, theta, extra, sig):

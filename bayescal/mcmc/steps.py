@@ -329,8 +329,6 @@ def seeded_sampler(nwalkers, ndim, fn, rng, moves):
 #: (a likelihood near-Gaussian in the sampling coordinates may ask for less:
 #: ``run_until_converged(burn_floor=...)``)
 BURN_FLOOR = 0.25
-#: smallest chunk of steps between two checks of the stopping rule
-MIN_CHUNK = 50
 
 
 def _assess(chain, tau_factor, burn_factor, coords=None, burn_floor=BURN_FLOOR):
@@ -359,8 +357,7 @@ BUDGET_FACTOR = 3.0
 
 
 def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, progress,
-                        burn_factor=5.0, coords=None, budget=None, burn_floor=BURN_FLOOR,
-                        min_chunk=MIN_CHUNK):
+                        burn_factor=5.0, coords=None, budget=None, burn_floor=BURN_FLOOR):
     """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
 
     The progress bar shows the percentage of the stopping rule met so far: the
@@ -417,7 +414,7 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
                     "between inlier and outlier, or several modes: see outlier_prob and the "
                     "least-squares fit)")
                 break
-            chunk = int(np.clip(1.2 * need, min_chunk, max(chunk, 50) * 4))
+            chunk = int(np.clip(1.2 * need, 50, max(chunk, 50) * 4))
             if budget is not None and first is not None:    # end on the budget, not past it
                 chunk = int(max(min(chunk, budget * first[0] - total), 1))
     finally:

@@ -82,3 +82,18 @@ def test_fused_draws_are_the_generic_ones(monkeypatch, sigma_px, sigma_scene, ou
     # the same random numbers, the same acceptances: the same draws to rounding
     assert fused[1] == generic[1]
     np.testing.assert_allclose(fused[0], generic[0], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("sigma_px, sigma_scene, outliers, point_prior", _CASES[1:4])
+def test_fused_outlier_probs_are_the_likelihoods(sigma_px, sigma_scene, outliers, point_prior):
+    from bayescal.likelihood.point_algebra import outlier_probs
+
+    lik, psi, q0 = _laser_case(sigma_px, sigma_scene, outliers, point_prior)
+    lik.pixels[3] += 15.0                                # an outlier: r near 1 there
+    q = np.broadcast_to(q0, (len(psi),) + q0.shape) + np.random.default_rng(2).normal(
+        0.0, 1.0, (len(psi),) + q0.shape)
+    want = lik.outlier_prob(psi, q)
+    got = outlier_probs(lik, psi, q, 4)
+    assert np.all(want[:, 3] > 0.5)
+    # the same Gauss-Newton steps and mixture: rounding only
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
