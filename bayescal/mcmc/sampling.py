@@ -70,6 +70,10 @@ ALIGNED_TUNE = 40
 ALIGNED_IMH_WEIGHT = 0.9
 #: its tuning rounds
 ALIGNED_TUNE_ROUNDS = 3
+#: its Metropolis-Hastings corrections per point draw: one (others: two). The draws'
+#: Laplace proposal is accepted 0.97-0.999 of the time, so the second correction changed
+#: next to nothing and cost a third of the draws (docs/performance.md)
+ALIGNED_POINT_MH = 1
 #: its smallest burn-in, a fraction of the chain (other models: a quarter,
 #: ``bayescal.mcmc.steps.BURN_FLOOR``): none, the burn-in is 5 tau. The chain starts from the
 #: last tuning round's walkers, which ran on the same target; on the 1000 mm benchmark room,
@@ -85,7 +89,7 @@ __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConverged
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
-                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
+                     on_unconverged="warn", n_point_mh=None, n_iter=1, n_tune=None,
                      outliers=True, model="aligned", pixel_cov=None, camera=None,
                      budget=BUDGET_FACTOR, offset_sd=0.0):
     """Sample the posterior over the 8 sensor parameters and every laser point.
@@ -151,7 +155,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     on_unconverged : {"warn", "raise"}
         What to do when ``max_steps`` is reached before convergence.
     n_point_mh : int, optional
-        Independence Metropolis-Hastings corrections per point draw.
+        Independence Metropolis-Hastings corrections per point draw (default
+        :data:`ALIGNED_POINT_MH`, 1, for the aligned cone with approximate points, whose
+        Laplace proposal the corrections accept 0.97-0.999 of the time; 2 otherwise).
     n_iter : int, optional
         Gauss-Newton iterations of the per-point Laplace step (the sampler's target;
         the point draws' proposal takes ``n_iter`` with the aligned cone and approximate
@@ -199,6 +205,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     >>> post.param_samples.shape[1], post.point_samples.shape[1:]
     (8, (60, 3))
     """
+    if n_point_mh is None:
+        n_point_mh = ALIGNED_POINT_MH if model == "aligned" \
+            and not isinstance(approx_points, FloorPlan) else 2
     check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
