@@ -3,7 +3,9 @@
 
 Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 :meth:`bayescal.likelihood.points.LaserLikelihood.laplace` and
-:meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`.
+:meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`; the aligned cone's
+fused passes also serve the point draws (:func:`draw_proposal`, :func:`draw_log_density`)
+and the posterior's outlier probabilities (:func:`outlier_probs`).
 """
 
 from __future__ import annotations
