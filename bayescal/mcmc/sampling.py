@@ -68,8 +68,6 @@ ALIGNED_TUNE = 40
 #: share of the independence move in its production run (the rest differential evolution):
 #: 0.9 in place of 0.8 gave 6-22 % fewer evaluations per effective sample on the same rooms
 ALIGNED_IMH_WEIGHT = 0.9
-#: its tuning rounds
-ALIGNED_TUNE_ROUNDS = 3
 #: its Metropolis-Hastings corrections per point draw: one (others: two). The draws'
 #: Laplace proposal is accepted 0.97-0.999 of the time, so the second correction changed
 #: next to nothing and cost a third of the draws (docs/performance.md)
@@ -259,8 +257,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
 def _aligned_run():
     """sample_collapsed's settings for the aligned cone with approximate points."""
-    return {"imh_weight": ALIGNED_IMH_WEIGHT, "tune_rounds": ALIGNED_TUNE_ROUNDS,
-            "burn_floor": ALIGNED_BURN_FLOOR}
+    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR}
 
 
 def _with_offset(post, offset_sd, rng):
