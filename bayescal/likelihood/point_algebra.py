@@ -3,7 +3,9 @@
 
 Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 :meth:`bayescal.likelihood.points.LaserLikelihood.laplace` and
-:meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`.
+:meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`; the aligned cone's
+fused passes also serve the point draws (:func:`draw_proposal`, :func:`draw_log_density`)
+and the posterior's outlier probabilities (:func:`outlier_probs`).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ _LOG2PI = np.log(2 * np.pi)
 
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
            "whiten", "whiten_pair", "marginal_sum", "marginal_block",
-           "point_columns"]
+           "point_columns", "draw_proposal", "draw_log_density", "outlier_probs"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -362,7 +364,85 @@ def _fused_newton(p, c, x, y, w, n_iter, keep_cp):
     m = g0 * d0
     m += g1 * d1
     np.subtract(rr, m, out=m)
-    return {"x": x, "y": y, "m": m, "det": det, "d": (d0, d1), "parts": parts}
+    return {"x": x, "y": y, "m": m, "det": det, "d": (d0, d1), "parts": parts,
+            "C": (C00, C01, C11)}
+
+
+def outlier_probs(lik, psi, q0, n_iter):
+    """:meth:`~bayescal.likelihood.points.LaserLikelihood.outlier_prob` (W, N) of the aligned
+    cone in the fused passes of :func:`marginal_sum` (the same Gauss-Newton steps from
+    ``q0`` (N, 2) or (W, N, 2), the same mixture); ``None`` where they do not apply
+    (:func:`_fused_applies`) or without the mixture."""
+    if not (getattr(lik, "outliers", False) and _fused_applies(lik, psi, q0)):
+        return None
+    return _fused_call(lik, psi, q0, n_iter, True)[0][3]
+
+
+def _noise_setup(lik, theta, extra, sig):
+    """Per-walker terms of the fused passes for ``theta`` (W, 7), ``extra`` (W, n_extra) and
+    the pixel noise ``sig`` (W,): the walker factors ``p``, the points' columns ``c``, the
+    scene weights ``w``, ``kappa`` (None unless inferred) and the squared noise scales (W,)
+    of the Jeffreys point prior (pixel ``sp``, scene ``ss``)."""
+    c, kappa = point_columns(lik), None
+    if lik.infer_scene:
+        kappa = np.exp(extra[:, int(lik.infer_px)])
+        ws = 1.0 / (kappa[:, None] * lik.rho)
+        w, ss = (ws, ws, ws), (kappa / lik.ref_kappa) ** 2
+    else:
+        w, ss = (c["wx"], c["wy"], c["wz"]), np.ones(len(theta))
+    return {"p": _walker_terms(theta, sig), "c": c, "w": w, "kappa": kappa,
+            "sp": (sig / lik.ref_sigma_px) ** 2, "ss": ss}
+
+
+def _draw_setup(lik, psi):
+    """:func:`_noise_setup` of ``psi`` (W, d) and its ``extra``, for the point draws."""
+    psi = np.asarray(psi, dtype=float)
+    extra = psi[:, 7:]
+    sig = np.exp(extra[:, 0]) if lik.infer_px else np.full(len(psi), lik.sigma_px)
+    return _noise_setup(lik, psi[:, :7], extra, sig), extra
+
+
+def draw_proposal(lik, psi, q0, n_iter):
+    """The point draws' Laplace proposal of the aligned cone in fused passes: the modes
+    ``(x, y)`` (W, N) and precisions ``(C00, C01, C11)`` (W, N) of
+    :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace` (``q`` and ``C``, the
+    outlier mixture's moment-matched scaling included); ``None`` where the fused passes do
+    not apply (:func:`_fused_applies`). ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)."""
+    if not _fused_applies(lik, psi, q0):
+        return None
+    q0 = np.asarray(q0, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s, extra = _draw_setup(lik, psi)
+        g = _fused_newton(s["p"], s["c"], q0[..., 0], q0[..., 1], s["w"], n_iter, False)
+        C = g["C"]
+        if lik.outliers:
+            r = _mix_sum(extra[:, -1], g["m"], lik._n_rows, lik.outlier_scale, True)[1]
+            f = 1.0 / ((1.0 - r) + r * lik.outlier_scale**2)
+            C = tuple(ci * f for ci in C)
+    shape = (len(extra), lik.n)
+    return np.broadcast_to(g["x"], shape), np.broadcast_to(g["y"], shape), C
+
+
+def draw_log_density(lik, psi, x, y):
+    """Each point's exact log density of ``(x, y)`` (W, N) given ``psi`` (W, d) for the
+    aligned cone (where :func:`draw_proposal` applies), up to a constant per (walker,
+    point): :meth:`~bayescal.likelihood.points.LaserLikelihood.point_log_density` without
+    its normalisers, which cancel in the draws' Metropolis-Hastings ratios; ``-inf``
+    outside the model's domain."""
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s, extra = _draw_setup(lik, psi)
+        flat = lik.point_prior == "flat"
+        rr, _, _, _, parts = _fused_terms(s["p"], s["c"], x, y, s["w"], True, not flat)
+        out = -0.5 * rr
+        if not flat:                                # the Jeffreys prior at the reference noise
+            sp, ss = s["sp"][:, None], s["ss"][:, None]
+            c00, c01, c11 = (a * sp + b * ss for a, b in zip(*parts, strict=True))
+            out += 0.5 * np.log(c00 * c11 - c01 * c01)
+        if lik.outliers:                            # outliers.mix(laplace=False), per point
+            scale, lw = lik.outlier_scale, extra[:, -1:]
+            delta = rr * (0.5 * (1.0 - 1.0 / scale**2)) - lik._n_rows * np.log(scale)
+            out += np.logaddexp(log_expit(-lw), log_expit(lw) + delta)
+    return np.where(np.isfinite(out), out, -np.inf)
 
 
 def marginal_sum(lik, theta, extra, sig, q0, n_iter, *, modes=False):
@@ -371,19 +451,14 @@ def marginal_sum(lik, theta, extra, sig, q0, n_iter, *, modes=False):
     the same Gauss-Newton steps and terms, fused (the sampler's hot path). With ``modes``
     also the modes ``x, y`` (W, N) one step past the last iterate and the outlier
     probabilities (W, N) (None without the mixture), as the gradient needs them."""
-    c = point_columns(lik)
-    p = _walker_terms(theta, sig)
-    W, n = len(theta), lik.n
+    n = lik.n
+    s = _noise_setup(lik, theta, extra, sig)
+    c, p, w, sp, ss = s["c"], s["p"], s["w"], s["sp"], s["ss"]
     if lik.infer_scene:
-        kappa = np.exp(extra[:, int(lik.infer_px)])
-        ws = 1.0 / (kappa[:, None] * lik.rho)
-        w = (ws, ws, ws)
-        sum_log_w = -3.0 * (n * np.log(kappa) + c["log_rho"])
+        sum_log_w = -3.0 * (n * np.log(s["kappa"]) + c["log_rho"])
     else:
-        w, sum_log_w = (c["wx"], c["wy"], c["wz"]), c["log_w"]
+        sum_log_w = c["log_w"]
     flat = lik.point_prior == "flat"
-    sp = (sig / lik.ref_sigma_px) ** 2
-    ss = (kappa / lik.ref_kappa) ** 2 if lik.infer_scene else np.ones(W)
     # Jeffreys prior at the sampled noise: |C|^(1/2) cancels the Laplace determinant
     cancel = not flat and np.all(sp == 1.0) and np.all(ss == 1.0)
     q0 = np.asarray(q0, dtype=float)

@@ -19,11 +19,14 @@ import numpy as np
 
 from .._validation import resolve_rng
 from ..errors import NoiseAtBoundWarning, NotConvergedError, NotConvergedWarning
+from ..likelihood.point_algebra import outlier_probs
+from ..likelihood.point_draws import DRAW_ELEMENTS
 from ..likelihood.points import draw_points
 from ..stats.chains import ChainDiagnostics
 from .ensemble import spd_covariance, spread_walkers
 from .moves import HMCMove, IndependenceMove
 from .steps import (
+    BURN_FLOOR,
     HMC_LEAPFROG,
     CollapsedTarget,
     Coordinates,
@@ -45,6 +48,9 @@ HMC_WEIGHT = 0.3
 IMH_WEIGHT = 0.6
 #: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
 HMC_PATH = 1.5
+#: Gauss-Newton iterations of the fused outlier probabilities from each point draw: those
+#: of ``LaserLikelihood.outlier_prob``
+OUTLIER_ITER = 4
 
 
 
@@ -108,7 +114,7 @@ def _imh_acceptance(moves):
     return float(acc[0]) if acc else float("nan")
 
 
-def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
+def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves, n_rounds):
     """Walker placement and proposal tuning (steps 2-3), in sampling coordinates."""
     p0 = rng.multivariate_normal(s_map, cov_s, size=n_walkers)
     lp0 = target(p0)
@@ -124,7 +130,7 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves):
         return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3,
                 "imh_acceptance": [], "use_hmc": target.has_gradient}
     return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
-                         gradient=target.has_gradient)
+                         gradient=target.has_gradient, n_rounds=n_rounds)
 
 
 def _thin(chain, burn, n_samples):
@@ -214,7 +220,8 @@ def _camera_holds_gamma(prior, cov_psi):
 def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_walkers=None,
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                      moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None,
-                     budget=None, draw_iter=None, imh_weight=None):
+                     budget=None, draw_iter=None, imh_weight=None, tune_rounds=3,
+                     burn_floor=BURN_FLOOR):
     """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
     Parameters
@@ -245,6 +252,11 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     imh_weight : float, optional
         Share of the independence move in a production run without HMC (default
         :func:`default_moves`'); the rest is DEMove.
+    tune_rounds : int, optional
+        Tuning rounds (:func:`~bayescal.mcmc.steps.tune_proposal`).
+    burn_floor : float, optional
+        Smallest burn-in, a fraction of the chain (above it: 5 tau;
+        :func:`~bayescal.mcmc.steps.run_until_converged`).
 
     Returns
     -------
@@ -282,7 +294,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     cov_s = spd_covariance(J @ np.asarray(cov_psi_map, float) @ J.T,
                            what="Laplace covariance at the least-squares start")
     t0 = time.process_time()
-    fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves)
+    fit = _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves, int(tune_rounds))
     p0 = spread_walkers(fit["state"], target, fit["cov"], rng)
     t1, n_tune_calls = time.process_time(), int(target.n_calls)
     # HMC only where the first tuning round's independence proposal fitted badly
@@ -299,7 +311,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
     info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
                                max_steps=int(max_steps), chunk=100, progress=progress,
-                               coords=coords, budget=budget)
+                               coords=coords, budget=budget, burn_floor=burn_floor)
     t2 = time.process_time()
     diag = _diagnostics(lik, info, sampler, fit, prod_moves, target, n_tune_calls,
                         tau_factor=tau_factor, min_ess=min_ess)
@@ -326,11 +338,17 @@ def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):
     """
     if not getattr(lik, "outliers", False):
         return None
-    batch = max(1, 500_000 // max(lik.n, 1)) if batch is None else int(batch)
     every = max(1, -(-len(psi) // max_draws))
     psi, q = psi[::every], q[::every]
+    # the aligned cone's in fused passes, cache-sized (same numbers: point_algebra)
+    fused = callable(getattr(lik, "_marginal_block", None)) \
+        and outlier_probs(lik, psi[:1], q[:1], OUTLIER_ITER) is not None
+    if batch is None:
+        batch = DRAW_ELEMENTS if fused else 500_000
+        batch = max(1, batch // max(lik.n, 1))
     total = np.zeros(lik.n)
-    for lo in range(0, len(psi), batch):
-        p = lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
+    for lo in range(0, len(psi), int(batch)):
+        p = outlier_probs(lik, psi[lo:lo + batch], q[lo:lo + batch], OUTLIER_ITER) if fused \
+            else lik.outlier_prob(psi[lo:lo + batch], q[lo:lo + batch])
         total += np.nan_to_num(p, nan=1.0).sum(axis=0)     # no inlier fit: an outlier
     return total / len(psi)

@@ -68,6 +68,17 @@ ALIGNED_TUNE = 40
 #: share of the independence move in its production run (the rest differential evolution):
 #: 0.9 in place of 0.8 gave 6-22 % fewer evaluations per effective sample on the same rooms
 ALIGNED_IMH_WEIGHT = 0.9
+#: its Metropolis-Hastings corrections per point draw: one (others: two). The draws'
+#: Laplace proposal is accepted 0.97-0.999 of the time, so the second correction changed
+#: next to nothing and cost a third of the draws (docs/performance.md)
+ALIGNED_POINT_MH = 1
+#: its smallest burn-in, a fraction of the chain (other models: a quarter,
+#: ``bayescal.mcmc.steps.BURN_FLOOR``): none, the burn-in is 5 tau. The chain starts from the
+#: last tuning round's walkers, which ran on the same target; on the 1000 mm benchmark room,
+#: the 1500 mm z-known room with sigma_px inferred and the 1000 mm z-known room (sampler
+#: seed 7, min_ess=4000) the steps between 5 tau and a quarter of the chain had the means of
+#: the rest within |z| <= 2.0 over the 25 coordinates; docs/performance.md
+ALIGNED_BURN_FLOOR = 0.0
 
 __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConvergedWarning",
            "NotConvergedError", "NoiseAtBoundWarning", "default_moves", "NOISE_BOUNDS",
@@ -76,7 +87,7 @@ __all__ = ["sample_posterior", "sample_collapsed", "sample_joint", "NotConverged
 def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUIRED, prior=None,
                      rng=None, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
                      n_samples=2000, init=None, moves=None, progress=True,
-                     on_unconverged="warn", n_point_mh=2, n_iter=1, n_tune=None,
+                     on_unconverged="warn", n_point_mh=None, n_iter=1, n_tune=None,
                      outliers=True, model="aligned", pixel_cov=None, camera=None,
                      budget=BUDGET_FACTOR, offset_sd=0.0):
     """Sample the posterior over the 8 sensor parameters and every laser point.
@@ -142,7 +153,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     on_unconverged : {"warn", "raise"}
         What to do when ``max_steps`` is reached before convergence.
     n_point_mh : int, optional
-        Independence Metropolis-Hastings corrections per point draw.
+        Independence Metropolis-Hastings corrections per point draw (default
+        :data:`ALIGNED_POINT_MH`, 1, for the aligned cone with approximate points, whose
+        Laplace proposal the corrections accept 0.97-0.999 of the time; 2 otherwise).
     n_iter : int, optional
         Gauss-Newton iterations of the per-point Laplace step (the sampler's target;
         the point draws' proposal takes ``n_iter`` with the aligned cone and approximate
@@ -190,6 +203,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     >>> post.param_samples.shape[1], post.point_samples.shape[1:]
     (8, (60, 3))
     """
+    if n_point_mh is None:
+        n_point_mh = ALIGNED_POINT_MH if model == "aligned" \
+            and not isinstance(approx_points, FloorPlan) else 2
     check_run_options(n_walkers=n_walkers, min_ess=min_ess, tau_factor=tau_factor,
                       max_steps=max_steps, n_samples=n_samples, n_point_mh=n_point_mh,
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
@@ -230,13 +246,18 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter, n_tune=n_tune,
                            budget=budget, draw_iter=n_iter if aligned else None,
-                           imh_weight=ALIGNED_IMH_WEIGHT if aligned else None)
+                           **(_aligned_run() if aligned else {}))
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
                        on_unconverged=on_unconverged, stacklevel=2)
     return _with_offset(post, offset_sd, rng)
+
+
+def _aligned_run():
+    """sample_collapsed's settings for the aligned cone with approximate points."""
+    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR}
 
 
 def _with_offset(post, offset_sd, rng):

@@ -324,19 +324,26 @@ def seeded_sampler(nwalkers, ndim, fn, rng, moves):
     return sampler
 
 
-def _assess(chain, tau_factor, burn_factor, coords=None):
+#: smallest burn-in, as a fraction of the chain: the start (the last tuning state) can sit
+#: off the stationary spread along a ridge for longer than the stationary tau suggests
+#: (a likelihood near-Gaussian in the sampling coordinates may ask for less:
+#: ``run_until_converged(burn_floor=...)``)
+BURN_FLOOR = 0.25
+
+
+def _assess(chain, tau_factor, burn_factor, coords=None, burn_floor=BURN_FLOOR):
     """Burn-in, honest ESS and tau of a chain (T, W, d) in sampling coordinates; the verdict.
 
-    ESS is that of the parameters (``from_sampling``: what the user averages); tau,
-    for the ``tau_factor`` rule, is the larger of the parameter's and its sampling
-    coordinate's (``W T / ESS`` each), so neither is cut short.
+    The burn-in is ``burn_factor`` times the provisional tau, at least ``burn_floor``
+    of the chain and at most half of it. ESS is that of the parameters
+    (``from_sampling``: what the user averages); tau, for the ``tau_factor`` rule, is
+    the larger of the parameter's and its sampling coordinate's (``W T / ESS`` each),
+    so neither is cut short.
     """
     total = len(chain)
     tau_w = integrated_time(chain[total // 5:])      # first fifth: provisional burn-in
-    # at least a quarter: the start (the last tuning state) can sit off the stationary
-    # spread along the ridge for longer than the stationary tau suggests
-    burn = int(min(max(np.ceil(burn_factor * np.max(tau_w)), total // 4), total // 2)) \
-        if np.all(np.isfinite(tau_w)) else total // 2
+    burn = int(min(max(np.ceil(burn_factor * np.max(tau_w)), int(burn_floor * total)),
+                   total // 2)) if np.all(np.isfinite(tau_w)) else total // 2
     kept = chain[burn:]
     _, tau_s = ensemble_ess(kept)
     ess, tau_p = ensemble_ess((coords or _ASYMPTOTIC).from_sampling(kept))
@@ -350,7 +357,7 @@ BUDGET_FACTOR = 3.0
 
 
 def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, progress,
-                        burn_factor=5.0, coords=None, budget=None):
+                        burn_factor=5.0, coords=None, budget=None, burn_floor=BURN_FLOOR):
     """Run emcee in chunks until ``kept > tau_factor * tau`` and the honest ESS >= ``min_ess``.
 
     The progress bar shows the percentage of the stopping rule met so far: the
@@ -381,7 +388,7 @@ def run_until_converged(sampler, p0, *, min_ess, tau_factor, max_steps, chunk, p
             state = sampler.run_mcmc(state, n, progress=False)
             total += n
             burn, ess, tau, long_enough = _assess(sampler.get_chain(), tau_factor, burn_factor,
-                                                 coords)
+                                                 coords, burn_floor)
             done = long_enough and np.min(ess) >= min_ess
             info = {"tau": tau, "burn": burn, "n_steps": total, "converged": bool(done),
                     "ess": ess, "stopped": None}

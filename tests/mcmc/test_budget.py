@@ -78,3 +78,19 @@ def test_a_floor_plan_posterior_runs_under_the_same_budget(monkeypatch):
     assert any("time budget" in str(w.message) for w in caught)
     bc.sample_posterior(ds.pixels, ds.floor_plan, budget=None, **kw)
     assert seen[-1] is None
+
+
+def test_burn_in_is_five_tau_above_its_floor_and_at_most_half():
+    from bayescal.mcmc.steps import BURN_FLOOR, _assess
+    from bayescal.stats.chains import integrated_time
+
+    # AR(1) walkers with phi = 0.6 (tau = 4): 5 tau ~ 20 steps of 400
+    rng = np.random.default_rng(0)
+    chain = np.zeros((400, 10, 2))
+    for t in range(1, 400):
+        chain[t] = 0.6 * chain[t - 1] + 0.8 * rng.standard_normal((10, 2))
+    five_tau = int(np.ceil(5 * np.max(integrated_time(chain[80:]))))
+    assert 10 < five_tau < 50
+    assert _assess(chain, 50, 5.0, _Identity())[0] == int(BURN_FLOOR * 400) == 100
+    assert _assess(chain, 50, 5.0, _Identity(), burn_floor=0.0)[0] == five_tau
+    assert _assess(chain, 50, 5.0, _Identity(), burn_floor=0.9)[0] == 200     # half at most

@@ -80,7 +80,8 @@ def test_output_shapes_and_convergence_rule():
 
 def test_run_records_its_phases_and_uses_the_aligned_settings():
     # the aligned cone with approximate points: tuning rounds of ALIGNED_TUNE steps, 90 %
-    # independence moves in the production run; the diagnostics say where the CPU went
+    # independence moves in the production run, a burn-in of 5 tau; the diagnostics say
+    # where the CPU went
     ds = _room(60)
     c0 = time.process_time()
     post = _sample(ds, rng=4)
@@ -96,6 +97,8 @@ def test_run_records_its_phases_and_uses_the_aligned_settings():
     assert n_tune < extra["n_evaluations"]
     assert "IndependenceMove 90%" in post.diagnostics.moves
     assert 0 < extra["imh_acceptance"] <= 1
+    # its burn-in: 5 tau (ALIGNED_BURN_FLOOR 0), not the quarter of the chain of other models
+    assert sampling.ALIGNED_BURN_FLOOR == 0.0 and post.burn < post.n_steps // 4
 
 
 def test_same_seed_same_samples_different_seed_different():
