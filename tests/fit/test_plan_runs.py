@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.checks.fit import OffPlanWarning
+from bayescal import OffPlanWarning
 from bayescal.fit import floorplan as fp
 
 DEPTH = 600.0       # mm: a shelf 0.6 m deep, as the rendered furniture room's
