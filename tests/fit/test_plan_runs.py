@@ -67,15 +67,19 @@ def test_a_shelf_in_front_of_a_wall_is_set_aside_and_named(room):
 
 
 def test_a_shelf_on_half_a_wall_is_not_a_wall_drawn_wrong(room):
-    """Half of the wall's points on the shelf: with them flagged, more than half of the
-    wall's points are outliers, which fails a wall drawn far from where it is; here the
-    rest of the wall (24 points) measures it, so the calibration converges and names the
-    block (a wall all of whose points are flagged still fails: tests/likelihood/
-    test_planmodel.py)."""
+    """Half of the wall's points on the shelf. Before the search the fit bent to it here
+    (u0 4.35 sd off, nothing flagged, converged); in seeds 0-2 it flagged the block and
+    then failed, more than half of the wall's points flagged being the sign of a wall drawn
+    far from where it is. The rest of the wall (24 points) measures it: the calibration
+    converges, within 3.5 sd, and names the block (a wall all of whose points are flagged
+    still fails: tests/likelihood/test_planmodel.py)."""
     pix, block, k = _shelf(room, 0.5)
     with pytest.warns(OffPlanWarning):
         res = bc.calibrate_simultaneous(pix, room.floor_plan, sigma_px=None)
     assert res.converged
+    z = (res.geometry() - room.params.to_identifiable()) / np.sqrt(
+        np.diag(res.covariance_identifiable))
+    assert np.all(np.abs(z) < 3.5), z
     assert [set(r["rows"]) for r in res.extras["off_plan_runs"]] == [set(block)]
 
 
@@ -88,23 +92,26 @@ def test_a_room_without_furniture_reports_nothing(room):
 
 
 def test_the_run_search_costs_little_on_a_plain_fit(room):
-    """Without a block the search is one triangulation and a robust scale: the fit with it
-    takes at most 10 % longer than without it (best of 3 each, measured in the same run)."""
+    """Without a block the search is one triangulation and a robust scale: measured at
+    0.3-3.9 % of the plain fit (docs/floorplan.md section 15); here under 10 % (the
+    fastest of 3 runs of each, timed in the same run)."""
     import time
 
-    def best_of(resolve):
-        fp.RUNS.resolve, out = resolve, []
+    search = fp.RUNS.resolve
+    fp.RUNS.resolve = lambda lik, prior, best, max_iter: best
+    try:
+        fits = []
         for _ in range(3):
             t = time.perf_counter()
-            fp._fit(room.pixels, room.floor_plan, sigma_px=None, prior=None, init=None,
-                    max_iter=200)
-            out.append(time.perf_counter() - t)
-        return min(out)
-
-    search = fp.RUNS.resolve
-    try:
-        plain = best_of(lambda lik, prior, best, max_iter: best)
-        with_search = best_of(search)
+            lik, prior, best = fp._fit(room.pixels, room.floor_plan, sigma_px=None,
+                                       prior=None, init=None, max_iter=200)
+            fits.append(time.perf_counter() - t)
     finally:
         fp.RUNS.resolve = search
-    assert with_search < 1.10 * plain, (with_search, plain)
+    runs = []
+    for _ in range(3):
+        t = time.perf_counter()
+        search(lik, prior, best, 200)
+        runs.append(time.perf_counter() - t)
+    assert best.moved == [] and best.runs == []
+    assert min(runs) < 0.10 * min(fits), (min(runs), min(fits))
