@@ -117,8 +117,6 @@ KNOWN = {
     ("red", 2): "Bayer colour image: robust sd 0.260 px; and the calibrated u0 3.4 sd off "
                 "(3.6 before): extraction errors correlated over runs of 10-30 profiles "
                 "(block means 1.9-3.0x independent), which the covariances do not carry",
-    ("furniture", 0): "a floor-to-ceiling shelf not in the floor plan: calibrate exits 1 "
-                      "(walls far off the plan)",
 }
 
 #: the calibrated identifiable parameters against the truth: |z| < 3.5 for all seven has a
