@@ -4,11 +4,13 @@ A shelf, a cupboard or a person in front of a wall puts a run of neighbouring la
 in front of it. The per-point outlier mixture sets such points aside only when the fit
 leaves them far off; a block is many points, and the least squares may instead move the
 wall onto the block and flag the true wall's points beside it, which then lie *behind*
-their wall (``docs/floorplan.md``, "Furniture"). A laser point cannot lie behind the wall it
-is on (an opening the plan does not show aside): :func:`resolve_runs` looks for runs of
-flagged points behind their wall, moves that wall back to them, fits again from there (a
-fresh EM) and keeps that solution when it passes the plan's checks and leaves no run
-behind any wall. :func:`find_runs` lists the runs of a solution for its result and warning.
+their wall, or bend the sensor and an inferred noise until nothing looks off
+(``docs/floorplan.md`` section 15). A laser point cannot lie behind the wall it is on (an
+opening the plan does not show aside): :func:`resolve_runs` looks for runs of points behind
+their wall, moves that wall back to them, fits again from there (the high-breakdown start,
+then the EM) and keeps that solution when it passes the plan's checks, sets a run in front
+of the moved wall aside and leaves no run of flagged points behind any wall.
+:func:`find_runs` lists the runs of a solution for its result and warning (:func:`note_runs`).
 Kept apart from :mod:`bayescal.fit.floorplan` for size.
 """
 
