@@ -214,7 +214,8 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
                 else "Standardized pixel residuals")
         figs["residuals"] = (what, savefig(fig, out / "residuals.png"))
     if recon is not None:
-        tp = None if truth is None else np.asarray(truth.get("points"), float)
+        tp = (None if truth is None or truth.get("points") is None   # a truth of params only
+              else np.asarray(truth["points"], float))
         walls = None if truth is None or truth.get("walls") is None else np.asarray(
             truth["walls"], float)
         figs["reconstruction"] = ("Reconstruction with 95 % uncertainty", savefig(
