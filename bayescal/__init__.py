@@ -9,7 +9,7 @@ See ``docs/`` for the model, conventions and the public API.
 """
 
 from .checks.compare import ModelComparison, compare_models
-from .checks.fit import NoiseCollapseError
+from .checks.fit import NoiseCollapseError, OffPlanWarning
 from .checks.inputs import DuplicateRowsWarning
 from .errors import DegenerateInputError, ExtractionError
 from .fit.camera import calibrate_camera
@@ -98,6 +98,7 @@ __all__ = [
     "NotConvergedWarning",
     "NotConvergedError",
     "DuplicateRowsWarning",
+    "OffPlanWarning",
     "NoiseCollapseError",
     "DegenerateInputError",
     "ExtractionError",

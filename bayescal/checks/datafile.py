@@ -21,7 +21,7 @@ from ..errors import UsageError
 __all__ = ["load_truth", "check_geometry", "warn_duplicates", "sigma_px_setting",
            "sigma_scene_setting", "library_messages", "flagged_lines", "MIN_POINTS",
            "MIN_AZIMUTH_SPAN_DEG", "OUTLIER_FLAG", "rows_to_lines", "noise_collapse_message",
-           "flagged_text", "located_summary"]
+           "flagged_text", "located_summary", "runs_lines_text"]
 
 #: outlier probability above which an input line is listed as flagged
 OUTLIER_FLAG = 0.5
@@ -167,6 +167,19 @@ def rows_to_lines(data, rows):
     return [int(lines[int(r)]) for r in np.ravel(rows) if 0 <= int(r) < len(lines)]
 
 
+def runs_lines_text(data, rows):
+    """``"FILE lines 12-30, 32"``: the input lines of 0-based ``rows``, consecutive ones as
+    ranges."""
+    lines = sorted(set(rows_to_lines(data, rows)))
+    parts, start = [], None
+    for i, v in enumerate(lines):
+        start = v if start is None else start
+        if i + 1 == len(lines) or lines[i + 1] != v + 1:
+            parts.append(f"{start}-{v}" if v > start else f"{v}")
+            start = None
+    return f"{data.pixel_table.path} {_unit(data)} {', '.join(parts)}"
+
+
 def _lines_text(lines, limit=20):
     more = f" and {len(lines) - limit} more" if len(lines) > limit else ""
     return ", ".join(map(str, lines[:limit])) + more
@@ -209,12 +222,15 @@ def library_messages(data, *, reported=()):
     reported : iterable of int
         Lines already named by :func:`warn_duplicates`.
     """
-    from .fit import NoiseCollapseError
+    from .fit import NoiseCollapseError, OffPlanWarning, off_plan_text
     from .inputs import DuplicateRowsWarning
 
     show, seen = warnings.showwarning, {int(v) for v in reported}
 
     def translate(message, category, *args, **kw):
+        if isinstance(category, type) and issubclass(category, OffPlanWarning):
+            message = off_plan_text(getattr(message, "runs", ()),
+                                    where=lambda rows: runs_lines_text(data, rows)) or message
         if isinstance(category, type) and issubclass(category, DuplicateRowsWarning):
             lines = rows_to_lines(data, _duplicate_rows_of(message))
             if lines and set(lines) <= seen:
@@ -282,4 +298,10 @@ def located_summary(result, data):
     lines = [ln for ln in text.splitlines() if not ln.startswith("outliers (probability")]
     lines.append(flagged_text(data, prob) or f"outliers (outlier_prob > {OUTLIER_FLAG:g}): "
                  f"none of the {data.n_points} points")
+    for run in getattr(result, "extras", {}).get("off_plan_runs") or ():
+        a0, a1 = run["azimuth_deg"]
+        lines.append(f"a block off the floor plan, set aside: {len(run['rows'])} points "
+                     f"({runs_lines_text(data, run['rows'])}), azimuths {a0:.0f} to {a1:.0f} "
+                     f"deg, {abs(run['depth_mm']):.0f} mm "
+                     f"{'in front of' if run['side'] == 'front' else 'behind'} wall {run['wall']}")
     return "\n".join(lines)

@@ -19,8 +19,8 @@ import numpy as np
 from .rows import rows_text as _rows_text
 
 __all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
-           "worst_rows", "flag_untrusted", "DOMAIN", "BOUND_TOL", "PRIOR_SD_LIMIT",
-           "NOISE_RATIO_LIMIT", "GROSS_RATIO"]
+           "worst_rows", "flag_untrusted", "OffPlanWarning", "off_plan_text", "DOMAIN",
+           "BOUND_TOL", "PRIOR_SD_LIMIT", "NOISE_RATIO_LIMIT", "GROSS_RATIO"]
 
 #: the domain of the parameters that have one (the model is undefined beyond it)
 DOMAIN = {"xi": (0.0, np.inf), "h": (0.0, np.inf), "beta": (0.0, np.pi / 2)}
@@ -213,3 +213,44 @@ def flag_untrusted(result, prior, m, dof, *, noise_inferred):
     result.message = "; ".join(problems) + " (rows fitting worst, 0-based: " + \
         ", ".join(map(str, rows)) + ")"
     result.extras["failed_rows"] = rows
+
+
+class OffPlanWarning(UserWarning):
+    """Blocks of neighbouring laser points off their wall were set aside as outliers.
+
+    Furniture, a person in front of a wall, or an opening the floor plan does not show
+    (``docs/floorplan.md``, "Furniture"). ``runs``: the list of
+    :func:`bayescal.fit.plan_runs.find_runs`.
+    """
+
+    def __init__(self, message, runs=()):
+        super().__init__(message)
+        self.runs = list(runs)
+
+
+def off_plan_text(runs, *, where=None):
+    """The warning about blocks of points off the plan (str; empty without runs).
+
+    Parameters
+    ----------
+    runs : list of dict
+        :func:`bayescal.fit.plan_runs.find_runs`: ``wall``, ``side``, ``rows``,
+        ``azimuth_deg``, ``depth_mm``.
+    where : callable, optional
+        ``where(rows)`` -> text naming the rows' input lines (the CLI's file lines).
+    """
+    parts = []
+    for run in runs:
+        a0, a1 = run["azimuth_deg"]
+        what = ("furniture or a person the plan does not show?" if run["side"] == "front"
+                else "an opening the plan does not show?")
+        rows = f" ({where(run['rows'])})" if where is not None else ""
+        parts.append(f"{len(run['rows'])} neighbouring laser points{rows} at azimuths "
+                     f"{a0:.0f} to {a1:.0f} deg lie about {abs(run['depth_mm']):.0f} mm "
+                     f"{'in front of' if run['side'] == 'front' else 'behind'} wall "
+                     f"{run['wall']} ({what})")
+    if not parts:
+        return ""
+    return ("; ".join(parts) + ": set aside as outliers, a block off the floor plan; the "
+            "parameters are fitted without them (check the room there, or give that surface "
+            "as a wall of the plan)")

@@ -43,6 +43,7 @@ from ..sensor.parameters import (
 )
 from ..sensor.pose import POSE_NAMES
 from .plan_robust import PlanRetry
+from .plan_runs import PlanRuns, note_runs
 from .schur import _prior_rows, damped_step, safe_inv
 
 __all__ = ["calibrate_plan", "PlanMapSolution", "CHECK_P", "N_RESTARTS", "RING_CORR_DEG",
@@ -56,8 +57,7 @@ class PlanMapSolution:
     Attributes
     ----------
     g : ndarray, shape (n_geo + 1 + 2W,)
-        ``(theta[, pose], phi, walls flattened)`` at the MAP (``n_geo`` 7, or 11 with the
-        laser pose).
+        ``(theta[, pose], phi, walls flattened)`` at the MAP (``n_geo`` 7, or 11 with a pose).
     t : ndarray, shape (N,)
         Point azimuths, rad.
     wall_index : ndarray of int, shape (N,)
@@ -224,19 +224,18 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
         best = sol if sol.objective < best.objective else best
     best = _corner_restarts(lik, prior, best, max_iter)
     _restore(lik, best)
-    return lik, prior, RETRY.retry(lik, prior, best, max_iter)
+    return lik, prior, RUNS.resolve(lik, prior, RETRY.retry(lik, prior, best, max_iter), max_iter)
 
 
 def _fit_from(lik, prior, init, max_iter, *, staged=True):
     """One start: (staged) solve, noise estimate, re-picked corners; returns the solution.
 
     If ``staged``, stage 1 holds the wall orientations at the plan and fits the sensor and the
-    walls' distances; stage 2 frees everything. From the design sensor a rough
-    plan (orientations off by ~3 degrees per wall) can otherwise lead the joint
-    solve into a wrong wall configuration: in the Fig. 9 case of
-    ``docs/floorplan.md`` section 3, walls 14 prior sd off and 1.6 m errors. But
-    held orientations can also mislead stage 1 (h driven to 0 in one 5000 mm
-    replication), so :func:`_fit` runs both and keeps the better.
+    walls' distances; stage 2 frees everything. From the design sensor a rough plan
+    (orientations off by ~3 degrees per wall) can otherwise lead the joint solve into a wrong
+    wall configuration: in the Fig. 9 case of ``docs/floorplan.md`` section 3, walls 14 prior
+    sd off and 1.6 m errors. But held orientations can also mislead stage 1 (h driven to 0 in
+    one 5000 mm replication), so :func:`_fit` runs both and keeps the better.
     """
     plan = lik.plan
     lik.assign(init)
@@ -304,9 +303,7 @@ def _noise_factor(lik, sol, k, inliers):
 
 def _em_state(lik):
     """A copy of the EM state ``(weights, r, w)`` (None without the mixture)."""
-    if not lik.outliers:
-        return None
-    return lik.em_weights.copy(), lik.em_r.copy(), lik.em_w
+    return (lik.em_weights.copy(), lik.em_r.copy(), lik.em_w) if lik.outliers else None
 
 
 def _restore(lik, sol):
@@ -461,6 +458,7 @@ def calibrate_plan(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
     result = make_result(lik, sol, absolute_sigma, False, prior=prior)
     result.extras["ring_corr_deg"] = ring_corr_deg
     result.extras["robust_start"] = bool(getattr(sol, "robust", False))
+    note_runs(result, sol)
     if result.converged:         # one degree of freedom per point: its pixel pair, its azimuth
         flag_untrusted(result, prior, np.sum(sol.ne["R0"] ** 2, axis=1), 1,
                        noise_inferred=lik.infer_px)
@@ -495,6 +493,8 @@ def ring_corr_cov(lik, sol, scale_deg):
     return 0.5 * (C + C.T)
 
 
-#: the robust retry of :func:`_fit` (:mod:`bayescal.fit.plan_robust`), on this module's steps
+#: the robust retry of :func:`_fit` and the search for blocks of points off their wall
+#: (:mod:`bayescal.fit.plan_robust`, :mod:`bayescal.fit.plan_runs`), on this module's steps
 RETRY = PlanRetry(solve=_solve, finish=_finish, e_step=_e_step, restore=_restore,
                   normal_equations=_normal_equations, sensor=_sensor)
+RUNS = PlanRuns(restore=_restore, sensor=_sensor, retry=RETRY)

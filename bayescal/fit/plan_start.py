@@ -13,6 +13,7 @@ import numpy as np
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
 from ..results.floorplan import make_result, plan_psi
 from .floorplan import _fit
+from .plan_runs import note_runs
 
 __all__ = ["plan_map_start"]
 
@@ -44,6 +45,7 @@ def plan_map_start(pixels, plan, *, sigma_px, prior=None, init=None, absolute_si
                            outlier_prior=outlier_prior, pixel_cov=pixel_cov, model=model)
     res = make_result(lik, sol, absolute_sigma, raise_on_failure, prior=prior)
     res.extras["robust_start"] = bool(getattr(sol, "robust", False))
+    note_runs(res, sol)                     # a block off the plan: warned, in res.extras
     res.extras["likelihood"] = lik
     # typical horizontal range of the laser points: where a finite-range ring radius would
     # straighten the sampler's (xi, gamma, h, beta) ridge (docs/floorplan.md section 8)

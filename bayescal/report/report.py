@@ -214,7 +214,8 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
                 else "Standardized pixel residuals")
         figs["residuals"] = (what, savefig(fig, out / "residuals.png"))
     if recon is not None:
-        tp = None if truth is None else np.asarray(truth.get("points"), float)
+        tp = (None if truth is None or truth.get("points") is None   # a truth of params only
+              else np.asarray(truth["points"], float))
         walls = None if truth is None or truth.get("walls") is None else np.asarray(
             truth["walls"], float)
         figs["reconstruction"] = ("Reconstruction with 95 % uncertainty", savefig(
@@ -233,15 +234,21 @@ def report_figures(out, result, info, *, data, recon, truth, check=None):
 
 
 def _warnings(result, info, data):
+    from ..checks.datafile import runs_lines_text
+    from ..checks.fit import off_plan_text
     from ..checks.residuals import noise_warnings
 
+    runs = (getattr(result, "extras", None) or {}).get("off_plan_runs") or ()
+    where = None if data is None else (lambda rows: runs_lines_text(data, rows))
+    text = off_plan_text(runs, where=where)    # a block of points off the floor plan
+    off = [f"{text}."] if text else []
     if _is_posterior(result):
         out = [] if result.converged else [
             "The sampler did not converge (chains shorter than 50 autocorrelation times): the "
             "means, sds and intervals below are not reliable."]
-        return out
+        return out + off
     used = info.get("sigma_px") or (data.sigma_px if data is not None else None)
-    return noise_warnings(result, used)
+    return noise_warnings(result, used) + off
 
 
 def _intro(doc, result, info):

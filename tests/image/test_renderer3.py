@@ -109,12 +109,10 @@ def test_no_ring_exits_2_and_writes_nothing(tmp_path, capsys):
 
 #: (scenario, seed) -> why the chain misses a target there (a strict xfail), measured on
 #: this branch with the extractor as it is (docs/images.md, "A third renderer")
-#: lamps-1 and bright-2 meet every target with the mirror's outer disc left out of the search
-#: (measured on the extractor's branch of the same day): drop them when it is merged.
-KNOWN = {
-    ("furniture", 0): "a floor-to-ceiling shelf not in the floor plan: calibrate exits 1 "
-                      "(walls far off the plan)",
-}
+#: (none now: red-1 and red-2 met every target once a demosaiced colour channel was smoothed,
+#: furniture-0 once the floor-plan fit set a block in front of a wall aside; they stay below
+#: as regression cases)
+KNOWN = {}
 
 #: the calibrated identifiable parameters against the truth: |z| < 3.5 for all seven has a
 #: false-failure rate of about 0.3 % per image when the sds are honest (7 x 4.7e-4)
