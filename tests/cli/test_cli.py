@@ -889,3 +889,15 @@ def test_reconstruct_an_image_frame(tmp_path):
     (tmp_path / "broken.png").write_bytes(b"not an image")
     r = run("reconstruct", "broken.png", "--run", "run", "--out", "rec2", cwd=tmp_path)
     assert r.returncode == 2 and "broken.png" in r.stderr and not (tmp_path / "rec2").exists()
+
+
+def test_truth_of_the_parameters_only_draws_the_report(sim, tmp_path, capsys, monkeypatch):
+    # a truth file without points (a renderer's): its report's reconstruction figure
+    # ended calibrate in a traceback
+    monkeypatch.chdir(tmp_path)
+    truth = json.loads((sim / "truth.json").read_text())
+    truth.pop("points")
+    (tmp_path / "t.json").write_text(json.dumps(truth))
+    rc, cap = _main(["calibrate", sim / "laser.csv", "--truth", "t.json", "--out", "o"], capsys)
+    assert rc == 0, cap.err
+    assert "Traceback" not in cap.err and (tmp_path / "o" / "reconstruction.png").exists()
