@@ -75,10 +75,10 @@ def test_misaligned_plan_posterior_converges_with_an_honest_ess():
 
 
 def test_inverse_jacobian_is_the_inverse_of_the_coordinate_map_jacobian():
-    """``d psi / d s`` (differences in 5 directions, the rest closed-form: the pose's ``-k``
-    on the principal point, the outlier fraction's cube root) is the inverse of ``d s / d
-    psi`` (central differences of ``to_sampling`` in every direction), to 1e-6 of the
-    largest entry (the differences' error)."""
+    """``d psi / d s`` (differences in 5 directions, 9 with the pose; the rest closed-form:
+    the identity, the outlier fraction's cube root) is the inverse of ``d s / d psi``
+    (central differences of ``to_sampling`` in every direction), to 1e-6 of the largest
+    entry (the differences' error)."""
     from bayescal.mcmc.coordinates import Coordinates
 
     th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
