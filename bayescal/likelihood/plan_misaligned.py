@@ -49,13 +49,16 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     move_weights = (0.45, 0.55)
     hmc_path = 2.0
     #: steps per tuning round (the sampler's default with a gradient: 60): the mass matrix
-    #: and the independence proposal are fitted from the tuning rounds' draws, and 60 steps
-    #: at tau ~10 leave ~100 independent draws for a 24 x 24 covariance; 150 took the first
-    #: benchmark plan's chain from max tau 17.6 (stopped by its budget, not converged) to 7.7
-    #: (converged in 524 steps), ``docs/floorplan.md`` section 13
-    tune_steps = 150
-    #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`):
-    #: max tau 31 -> 6.9 here (150 points; the walls as they are, not net of the pose);
+    #: and the independence proposal are fitted from the tuning rounds' draws. At tau ~10, 60
+    #: steps left ~100 independent draws for a 24 x 24 covariance and 150 were needed (the
+    #: first benchmark plan's chain: max tau 17.6, not converged -> 7.7); with the ring radii
+    #: net of the pose's scale (:func:`bayescal.mcmc.coordinates.pose_scale`) tau is ~3 and 80
+    #: steps do: the tuning then took half the CPU, ``docs/floorplan.md`` section 13, item 8
+    tune_steps = 80
+    #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`)
+    #: and the ring radii net of the pose's scale (``pose_scale``): max tau 31 -> 6.9 here
+    #: with the first (150 points; the walls as they are, not net of the pose), 8.8 -> 3.5
+    #: with the second (first benchmark plan, 300 points);
     #: the per-point posterior, nearly Gaussian, gains nothing from it (measured,
     #: ``docs/floorplan.md`` section 13)
     pose_coordinates = True

@@ -16,7 +16,7 @@ from scipy.special import expit, logit
 
 from ..sensor.laser import cone_height
 
-__all__ = ["ring_scale", "depth_scale", "pose_shift", "Coordinates", "log_jacobian",
+__all__ = ["ring_scale", "depth_scale", "pose_shift", "pose_scale", "Coordinates", "log_jacobian",
            "to_sampling", "from_sampling", "sampling_jacobian"]
 
 
@@ -108,6 +108,46 @@ def pose_shift(theta, rho_ref):
         return np.linalg.solve(A, b)
 
 
+#: the entries of theta :func:`pose_scale` reads: xi, h, beta and the pose
+_POSE_SCALE_READS = [0, 5, 6, 7, 8, 9, 10]
+
+
+def pose_scale(theta, rho_ref):
+    """The laser ring's relative change of scale ``(m_u, m_v)`` under the laser pose, (..., 2).
+
+    To first order a tilt moves the ring (:func:`pose_shift`); to second order it also
+    changes its size: the cone's generators leave the tilted axis at the half-angle, so
+    seen from the vertical they open wider on average (``tilt^2 cot(beta) / 4`` in the
+    polar angle, and three times that in the points' mean height, the first harmonic's
+    square adding twice as much), which scales the ring's pixel radii by ``1 + m`` with
+    ``m`` of order ``tilt^2``. The data pin the radii the ring shows, so the sampler takes
+    ``R (1 + m)`` as the ring radius' coordinate (without it the sampled ring radii,
+    ``xi`` and ``beta`` bend with ``tilt_x^2 + tilt_y^2``: ``docs/floorplan.md`` section
+    13). ``m`` is exact, not expanded: the radial pixel shifts from the aligned to the
+    posed cone of a ring of laser points at horizontal range ``rho_ref`` (unit ``gamma``:
+    a circle) are fitted by least squares with a translation and the two axis scales
+    (``u = m_u u_ring``, ``v = m_v v_ring``); the scales are returned. It reads ``xi``,
+    ``h``, ``beta`` and the pose, never ``gamma``, so the map stays triangular.
+    """
+    posed = np.array(theta[..., :11], dtype=float)
+    posed[..., 1:3] = 1.0
+    x, y = rho_ref * np.cos(POSE_RING), rho_ref * np.sin(POSE_RING)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = []
+        for th in (_aligned(posed), posed):
+            z = cone_height(th, x, y)[0]
+            D = th[..., 0, None] * np.sqrt(x * x + y * y + z * z) - z
+            pixels.append((x / D, y / D))
+        (pu, pv), (qu, qv) = pixels
+        rad = np.hypot(pu, pv)
+        nu, nv = pu / rad, pv / rad
+        shift = (qu - pu) * nu + (qv - pv) * nv                       # (..., R) radial
+        X = np.stack([nu, nv, nu * pu, nv * pv], axis=-1)               # (..., R, 4)
+        A = np.einsum("...ri,...rj->...ij", X, X)
+        b = np.einsum("...ri,...r->...i", X, shift)
+        return np.linalg.solve(A, b[..., None])[..., 2:, 0]
+
+
 class Coordinates:
     """The sampler's coordinates ``s`` of the globals ``psi``.
 
@@ -169,14 +209,20 @@ class Coordinates:
         gradient moves each coordinate in turn (central differences of the prior through
         this map), and all but those five leave ``k`` as it is (same floats), so most
         rows repeat (half the gradient's cost before)."""
-        return self._shift_k(psi)[0]
-
-    def _shift_k(self, psi):
-        """:meth:`_shift` and the pose's ``k`` (..., 2, 4) it used."""
         flat = psi.reshape(-1, psi.shape[-1])
         k = self._pose_k(flat)
-        shift = np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
-        return shift, k.reshape(psi.shape[:-1] + (2, 4))
+        return np.einsum("nij,nj->ni", k, flat[:, 7:11]).reshape(psi.shape[:-1] + (2,))
+
+    def _pose_m(self, psi):
+        """:func:`pose_scale` (..., 2) of psi, once per distinct ``(xi, h, beta, pose)``;
+        zeros without the pose or without the ring radii."""
+        if not (self.pose and self.ring):
+            return np.zeros(psi.shape[:-1] + (2,))
+        flat = psi.reshape(-1, psi.shape[-1])
+        keys, inverse = np.unique(flat[:, _POSE_SCALE_READS], axis=0, return_inverse=True)
+        rows = np.zeros((len(keys), 11))
+        rows[:, _POSE_SCALE_READS] = keys
+        return pose_scale(rows, self.rho_ref)[inverse.ravel()].reshape(psi.shape[:-1] + (2,))
 
     def _pose_k(self, flat):
         """:func:`pose_shift` (n, 2, 4) of the rows of ``flat`` (n, d), once per distinct
@@ -192,8 +238,9 @@ class Coordinates:
         if self.pose:
             s[..., 3:5] += self._shift(s)
         k, c = self._scales(s)
-        s[..., 1] *= k
-        s[..., 2] *= k
+        m = self._pose_m(s)
+        s[..., 1] *= k * (1.0 + m[..., 0])
+        s[..., 2] *= k * (1.0 + m[..., 1])
         s[..., 5] *= c
         if self.frac_index is not None:
             s[..., self.frac_index] = np.cbrt(expit(s[..., self.frac_index]))
@@ -201,52 +248,44 @@ class Coordinates:
 
     def from_sampling(self, s):
         """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
-        return self._from_sampling(s)[0]
-
-    def _from_sampling(self, s):
-        """:meth:`from_sampling` and the pose's ``k`` (..., 2, 4) at the result (None
-        without the pose)."""
         psi = np.array(s, dtype=float)
         psi[..., 5] /= self._scales(psi)[1]
         k = self._scales(psi)[0]
-        psi[..., 1] /= k
-        psi[..., 2] /= k
-        pose_k = None
+        m = self._pose_m(psi)                  # xi, h, beta and the pose are known here
+        psi[..., 1] /= k * (1.0 + m[..., 0])
+        psi[..., 2] /= k * (1.0 + m[..., 1])
         if self.pose:
-            shift, pose_k = self._shift_k(psi)
-            psi[..., 3:5] -= shift
+            psi[..., 3:5] -= self._shift(psi)
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
-        return psi, pose_k
+        return psi
 
     def inverse_jacobian(self, s, eps=1e-8):
         """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
         psi_j / d s_k``.
 
-        Only ``xi``, the ring radii, ``H`` and ``beta`` (entries 0, 1, 2, 5, 6) move other
-        entries of psi through the scales and the pose's ``k``: their columns are forward
-        differences (5 shifted copies of every row, step ``eps * max(1, |s|)``, near the
-        optimal step ``sqrt(machine eps)``: errors ~1e-8 relative; mapped in one call with
-        the rows themselves). The rest is closed-form: the identity, ``-k`` from the pose
-        to ``(u0, v0)`` and the outlier fraction's ``d logit(y^3) / dy = 3 / (y (1 -
-        y^3))``.
+        Only ``xi``, the ring radii, ``H``, ``beta`` and the pose (entries 0, 1, 2, 5, 6,
+        and 7-10 with the pose) move other entries of psi through the scales, the pose's
+        ``k`` and its ring scale ``m``: their columns are forward differences (5 or 9
+        shifted copies of every row, step ``eps * max(1, |s|)``, near the optimal step
+        ``sqrt(machine eps)``: errors ~1e-8 relative; mapped in one call with the rows
+        themselves). The rest is closed-form: the identity and the outlier fraction's ``d
+        logit(y^3) / dy = 3 / (y (1 - y^3))``.
         """
         s = np.atleast_2d(np.asarray(s, float))
         W, d = s.shape
         J = np.broadcast_to(np.eye(d), (W, d, d)).copy()
-        mixed = np.array([0, 1, 2, 5, 6])
+        mixed = np.array([0, 1, 2, 5, 6] + ([7, 8, 9, 10] if self.pose else []))
         m = len(mixed)
-        h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, 5)
+        h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, m)
         E = np.zeros((m, W, d))
         E[np.arange(m), :, mixed] = h.T
         with np.errstate(invalid="ignore"):
-            out, pose_k = self._from_sampling(np.concatenate([s[None], s[None] + E]))
+            out = self.from_sampling(np.concatenate([s[None], s[None] + E]))
             psi = out[0]
             J[:, mixed, :] = np.moveaxis((out[1:] - psi) / h.T[..., None], 0, 1)
-            if self.pose:
-                J[:, 7:11, 3:5] = -np.swapaxes(pose_k[0], -1, -2)
             f = self.frac_index
             if f is not None:
                 y = s[:, f]
@@ -257,7 +296,8 @@ class Coordinates:
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             k, c = self._scales(psi)
-            out = -2.0 * np.log(k) - np.log(np.abs(c))
+            m = self._pose_m(psi)
+            out = -2.0 * np.log(k) - np.log(np.abs(c)) - np.sum(np.log1p(m), axis=-1)
             if self.frac_index is not None:
                 # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
                 y = np.cbrt(expit(psi[..., self.frac_index]))

@@ -63,7 +63,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         As in :func:`bayescal.sample_posterior`.
     n_tune : int, optional
         Steps per round of the proposal tuning (default: the likelihood's
-        ``tune_steps`` where it has one, 150 with ``model="misaligned"``, else the
+        ``tune_steps`` where it has one, 80 with ``model="misaligned"``, else the
         sampler's).
     sigma_scene : not accepted
         The plan carries its own sds; giving it is a ``TypeError``.

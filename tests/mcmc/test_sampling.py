@@ -287,8 +287,48 @@ def test_finite_range_ring_radius_is_the_pixel_radius_at_that_range():
     assert ring_scale(th, 1e12) == pytest.approx(ring_scale(th), rel=1e-8)
 
 
-def test_pose_coordinates_round_trip_and_unit_jacobian():
-    from bayescal.mcmc.coordinates import Coordinates
+def test_pose_scale_is_the_rings_scale_under_the_pose():
+    """pose_scale is the pair of axis scales that, with a translation, fit best (least
+    squares) the radial pixel shifts of a ring of laser points at range rho_ref (their (x,
+    y) held, z from the posed cone), checked with the camera model (unit gamma, as
+    pose_scale takes it); it is of second order in the tilt (zero at zero pose, 4x at
+    twice the tilt to 2 %) and independent of gamma."""
+    from bayescal.mcmc.coordinates import POSE_RING, pose_scale
+    from bayescal.sensor.camera import project_theta
+    from bayescal.sensor.laser import cone_height
+
+    th = bc.SensorParams.paper().to_identifiable()
+    unit = th.copy()
+    unit[1:3] = 1.0
+    rho = 1500.0
+    x, y = rho * np.cos(POSE_RING), rho * np.sin(POSE_RING)
+
+    def pixels(pose):
+        z = cone_height(np.r_[unit, pose], x, y)[0]
+        return project_theta(unit, np.stack([x, y, z], axis=-1))[0] - unit[3:5]
+
+    p0 = pixels(np.zeros(4))
+    n = p0 / np.linalg.norm(p0, axis=1, keepdims=True)
+    X = np.c_[n, n * p0]
+    for pose in ([0.02, 0.0, 0.0, 0.0], [0.01, -0.015, 4.0, -3.0], [0.0, 0.0, 5.0, 5.0]):
+        pose = np.asarray(pose)
+        radial = np.sum((pixels(pose) - p0) * n, axis=1)
+        fit = np.linalg.lstsq(X, radial, rcond=None)[0][2:]
+        m = pose_scale(np.r_[th, pose], rho)
+        np.testing.assert_allclose(m, fit, rtol=1e-6, atol=1e-12)
+        np.testing.assert_allclose(pose_scale(np.r_[unit, pose], rho), m, rtol=1e-12)
+    np.testing.assert_array_equal(pose_scale(np.r_[th, np.zeros(4)], rho), 0.0)
+    m1 = pose_scale(np.r_[th, 0.01, 0.005, 0.0, 0.0], rho)
+    m2 = pose_scale(np.r_[th, 0.02, 0.01, 0.0, 0.0], rho)
+    assert np.all(np.abs(m1) > 1e-5)
+    np.testing.assert_allclose(m2, 4.0 * m1, rtol=0.02)
+
+
+def test_pose_coordinates_move_the_principal_point_and_ring_radii():
+    """The pose moves the principal point's coordinate (``k . pose``) and scales the ring
+    radii' (``1 + pose_scale``), nothing else; the map inverts and its log Jacobian is the
+    determinant's."""
+    from bayescal.mcmc.coordinates import Coordinates, pose_scale
 
     c = Coordinates(2000.0, 12, pose=True)
     th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
@@ -296,8 +336,10 @@ def test_pose_coordinates_round_trip_and_unit_jacobian():
     s = c.to_sampling(psi)
     np.testing.assert_allclose(c.from_sampling(s), psi, rtol=1e-12)
     plain = Coordinates(2000.0, 12)
-    assert not np.allclose(s[3:5], plain.to_sampling(psi)[3:5])      # u0, v0 moved
-    np.testing.assert_array_equal(np.delete(s, [3, 4]), np.delete(plain.to_sampling(psi), [3, 4]))
+    s0 = plain.to_sampling(psi)
+    assert not np.allclose(s[3:5], s0[3:5])      # u0, v0 moved
+    np.testing.assert_allclose(s[1:3] / s0[1:3], 1.0 + pose_scale(psi, 2000.0), rtol=1e-14)
+    np.testing.assert_array_equal(np.delete(s, [1, 2, 3, 4]), np.delete(s0, [1, 2, 3, 4]))
     J = c.jacobian(psi)
     np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
     with pytest.raises(ValueError, match="finite rho_ref"):
