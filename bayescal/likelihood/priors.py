@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import stats
-from scipy.special import logsumexp
 
 from .._validation import resolve_rng
 from ..sensor.parameters import (
@@ -46,6 +45,7 @@ from ..sensor.parameters import (
     to_identifiable,
 )
 from ..sensor.pose import POSE_NAMES
+from ..stats.densities import independent_log_density, log_density, log_survival, logsumexp_last
 
 __all__ = ["default_prior", "default_pose_prior", "Prior", "POSE_TOLERANCES", "as_prior"]
 
@@ -257,22 +257,23 @@ class Prior:
         self.dists = dists
         self.pose_dists = pose
         # normal priors are evaluated in closed form (scipy's per-call overhead dominated
-        # the sampler's prior cost)
+        # the sampler's prior cost); the common others too (bayescal.stats.densities)
         self._normal = {n: (float(d.mean()), float(d.std()))
                         for n, d in {**dists, **pose}.items()
                         if getattr(getattr(d, "dist", None), "name", "") == "norm"}
+        self._lp = {n: log_density(d) for n, d in {**dists, **pose}.items()}
+        self._phi_logsf = log_survival(dists["phi"])
+        # theta's columns with priors of their own (no camera): xi, u0, v0, h, beta
+        self._theta_terms = independent_log_density(
+            [dists[n] for n in ("xi", "u0", "v0", "h", "beta")], [0, 3, 4, 5, 6])
         # quadrature over phi: equal-probability nodes (midpoint rule in quantile space)
         u = (np.arange(n_phi) + 0.5) / n_phi
         self._phi_nodes = np.asarray(dists["phi"].ppf(u), dtype=float)
-        self._log_w = np.full(n_phi, -np.log(n_phi))
+        self._log_w = -np.log(n_phi)
 
     def _logpdf(self, name, x):
-        """Log density of parameter ``name`` at ``x`` (closed form for normals)."""
-        if name in self._normal:
-            mu, sd = self._normal[name]
-            z = (x - mu) / sd
-            return -0.5 * z * z - np.log(sd) - 0.5 * np.log(2 * np.pi)
-        return (self.pose_dists if name in POSE_NAMES else self.dists)[name].logpdf(x)
+        """Log density of parameter ``name`` at ``x`` (closed form for the common ones)."""
+        return self._lp[name](x)
 
     # -- laser pose (misaligned model) -------------------------------------
     def logpdf_pose(self, pose):
@@ -337,11 +338,11 @@ class Prior:
     # -- identifiable coordinates ------------------------------------------
     def _alpha_terms(self, theta, phi):
         """``log p_au(gu/s) + log p_av(gv/s) - 2 log s`` at nodes ``phi``, shape (..., K)."""
-        xi = theta[..., 0:1]
-        s = xi + phi
+        s = theta[..., 0:1] + phi
         with np.errstate(divide="ignore", invalid="ignore"):
-            lp = (self._logpdf("alpha_u", theta[..., 1:2] / s)
-                  + self._logpdf("alpha_v", theta[..., 2:3] / s) - 2.0 * np.log(s))
+            r = 1.0 / s
+            lp = (self._lp["alpha_u"](theta[..., 1:2] * r)
+                  + self._lp["alpha_v"](theta[..., 2:3] * r) + 2.0 * np.log(r))
         return np.where(s > 0, lp, -np.inf)
 
     def logpdf_theta(self, theta):
@@ -358,15 +359,12 @@ class Prior:
         theta = np.asarray(theta, dtype=float)
         if self.camera is not None:
             # phi independent of theta: integrating it out leaves P(xi + phi > 0)
-            out = (self._camera_logpdf(theta)
-                   + np.asarray(self.dists["phi"].logsf(-theta[..., 0]), dtype=float))
-            ok = (theta[..., 5] > 0) & (theta[..., 6] > 0) & (theta[..., 6] < np.pi / 2)
-            return np.where(ok & np.isfinite(out), out, -np.inf)
-        out = (self._logpdf("xi", theta[..., 0]) + self._logpdf("u0", theta[..., 3])
-               + self._logpdf("v0", theta[..., 4]) + self._logpdf("h", theta[..., 5])
-               + self._logpdf("beta", theta[..., 6]))
-        # E_phi[p_au p_av / s^2] over equal-probability nodes of p_phi
-        out = out + logsumexp(self._alpha_terms(theta, self._phi_nodes) + self._log_w, axis=-1)
+            out = self._camera_logpdf(theta) + self._phi_logsf(-theta[..., 0])
+        else:
+            out = self._theta_terms(theta)
+            # E_phi[p_au p_av / s^2] over equal-probability nodes of p_phi
+            out = out + (logsumexp_last(self._alpha_terms(theta, self._phi_nodes))
+                         + self._log_w)
         ok = (theta[..., 5] > 0) & (theta[..., 6] > 0) & (theta[..., 6] < np.pi / 2)
         return np.where(ok & np.isfinite(out), out, -np.inf)
 

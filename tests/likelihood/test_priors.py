@@ -3,10 +3,17 @@
 import numpy as np
 import pytest
 from scipy import integrate, stats
+from scipy.special import logsumexp
 
 import bayescal as bc
 from bayescal.likelihood.priors import Prior
 from bayescal.sensor.parameters import PARAM_NAMES
+from bayescal.stats.densities import (
+    independent_log_density,
+    log_density,
+    log_survival,
+    logsumexp_last,
+)
 
 PAPER = bc.SensorParams.paper()
 THETA0 = PAPER.to_identifiable()
@@ -264,3 +271,123 @@ def test_residuals_of_a_non_normal_prior(numdiff):
             return prior.residuals(b)[k:k + 1]
 
         np.testing.assert_allclose(J[k, k], numdiff(rk, np.array([h]), 1e-3)[0, 0], rtol=1e-5)
+
+
+# -- closed-form densities: the same values as scipy's ------------------------------------
+# The prior's densities are closed-form numpy (bayescal.stats.densities) for the common
+# families; these references are the same formulas through scipy's frozen distributions.
+# Tolerance: rounding only (a few ulps of terms of size <= ~1e3), hence rtol 1e-12.
+
+_OVERRIDES = {   # one of each closed-form family, and two scipy fallbacks (t, gamma)
+    "xi": stats.uniform(0.9, 0.2),
+    "phi": stats.truncnorm(-2.0, 1.5, loc=0.0, scale=0.1),
+    "alpha_u": stats.lognorm(0.1, loc=0.0, scale=55.0),
+    "alpha_v": stats.truncnorm(a=-3.0, b=3.0, loc=-55.0, scale=6.0),
+    "u0": stats.t(4, loc=400.0, scale=10.0),
+    "v0": stats.uniform(loc=280.0, scale=40.0),
+    "h": stats.lognorm(s=0.1, scale=200.0),
+    "beta": stats.truncnorm((0.9 - np.pi / 3) / 0.05, (1.2 - np.pi / 3) / 0.05,
+                            loc=np.pi / 3, scale=0.05),
+}
+_CAMERA = (THETA0[:5], np.diag([0.03, 2.0, 2.0, 5.0, 5.0]) ** 2 + 1e-4)
+
+
+def _scipy_logpdf_theta(prior, theta):
+    """The phi-integrated prior of theta through scipy's logpdf, logsf and logsumexp."""
+    d = prior.dists
+    th = np.asarray(theta, dtype=float)
+    ok = (th[..., 5] > 0) & (th[..., 6] > 0) & (th[..., 6] < np.pi / 2)
+    if prior.camera is not None:
+        mvn = stats.multivariate_normal(*prior.camera)
+        out = (mvn.logpdf(th[..., :5]) + d["h"].logpdf(th[..., 5]) + d["beta"].logpdf(th[..., 6])
+               + d["phi"].logsf(-th[..., 0]))
+    else:
+        out = sum(d[n].logpdf(th[..., k]) for k, n in ((0, "xi"), (3, "u0"), (4, "v0"),
+                                                        (5, "h"), (6, "beta")))
+        s = th[..., 0:1] + prior._phi_nodes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lp = (d["alpha_u"].logpdf(th[..., 1:2] / s) + d["alpha_v"].logpdf(th[..., 2:3] / s)
+                  - 2.0 * np.log(s))
+        lp = np.where(s > 0, lp, -np.inf)
+        out = out + logsumexp(lp - np.log(lp.shape[-1]), axis=-1)
+    return np.where(ok & np.isfinite(out), out, -np.inf)
+
+
+def _random_thetas(rng, n, spread):
+    """Thetas around the paper's, relative spread ``spread``: some outside every support."""
+    th = THETA0 * (1 + spread * rng.standard_normal((n, 7)))
+    th[::7, 0] = -0.5           # xi + phi < 0 at most nodes
+    th[1::11, 5] = -10.0        # h < 0
+    th[2::13, 6] = 2.0          # beta > pi/2
+    return th
+
+
+def _assert_same(got, want):
+    got, want = np.asarray(got), np.asarray(want)
+    np.testing.assert_array_equal(np.isneginf(got), np.isneginf(want))
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    fin = np.isfinite(want)
+    np.testing.assert_allclose(got[fin], want[fin], rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("kind", ["default", "overrides", "camera", "camera_overrides"])
+def test_logpdf_theta_equals_scipy_inside_and_outside_the_support(kind):
+    over = {k: v for k, v in _OVERRIDES.items() if k in ("phi", "h", "beta")}
+    prior = {"default": lambda: Prior(), "overrides": lambda: Prior(_OVERRIDES),
+             "camera": lambda: Prior(camera=_CAMERA),
+             "camera_overrides": lambda: Prior(over, camera=_CAMERA)}[kind]()
+    rng = np.random.default_rng(31)
+    # the overrides' bounded supports leave few finite values beyond a 10 % spread
+    for spread in (0.01, 0.05, 0.1) + ((0.3,) if kind != "overrides" else ()):
+        th = _random_thetas(rng, 200, spread)
+        want = _scipy_logpdf_theta(prior, th)
+        assert np.isfinite(want).sum() > 20 and np.isneginf(want).sum() > 20
+        _assert_same(prior.logpdf_theta(th), want)
+        _assert_same(prior.logpdf_theta(th[:32].reshape(4, 8, 7)), want[:32].reshape(4, 8))
+        _assert_same(prior.logpdf_theta(th[3]), want[3])
+        _assert_same(prior.logpdf_theta(th[3:4]), want[3:4])
+
+
+def test_logpdf_and_pose_logpdf_equal_scipy_with_overrides():
+    pose = {"tilt_x": stats.uniform(-0.1, 0.2), "offset_y": stats.lognorm(0.5, loc=-10.0)}
+    prior = Prior({**_OVERRIDES, **pose})
+    rng = np.random.default_rng(32)
+    a = PAPER.to_array() * (1 + 0.08 * rng.standard_normal((300, 8)))
+    a[:, 1] = 0.15 * rng.standard_normal(300)      # phi's design value is 0
+    want = sum(prior.dists[n].logpdf(a[:, k]) for k, n in enumerate(PARAM_NAMES))
+    assert np.isfinite(want).sum() > 20 and np.isneginf(want).sum() > 20
+    _assert_same(prior.logpdf(a), want)
+    p = 0.1 * rng.standard_normal((300, 4)) * [1, 1, 100, 100]
+    want = sum(prior.pose_dists[n].logpdf(p[:, k])
+               for k, n in enumerate(("tilt_x", "tilt_y", "offset_x", "offset_y")))
+    assert np.isfinite(want).sum() > 20 and np.isneginf(want).sum() > 20
+    _assert_same(prior.logpdf_pose(p), want)
+
+
+@pytest.mark.parametrize("dist", [
+    stats.norm(3.0, 0.2), stats.norm(loc=-1e3, scale=50.0), stats.uniform(-1.0, 3.0),
+    stats.truncnorm(-0.5, 2.0, loc=1.0, scale=2.0), stats.truncnorm(1.0, np.inf),
+    stats.lognorm(0.7), stats.lognorm(1.3, loc=-2.0, scale=4.0), stats.gamma(2.0, scale=3.0),
+])
+def test_log_density_and_survival_equal_scipy(dist):
+    rng = np.random.default_rng(33)
+    lo, hi = dist.ppf([1e-6, 1 - 1e-6])
+    x = np.concatenate([rng.uniform(lo - (hi - lo), hi + (hi - lo), 500), dist.support(),
+                        [np.nan, -np.inf, np.inf]])
+    with np.errstate(all="ignore"):
+        _assert_same(log_density(dist)(x), dist.logpdf(x))
+        _assert_same(log_survival(dist)(x[np.isfinite(x)]), dist.logsf(x[np.isfinite(x)]))
+    _assert_same(log_density(dist)(x[:50].reshape(5, 10)), dist.logpdf(x[:50]).reshape(5, 10))
+    mixed = [dist, stats.norm(1.0, 2.0), stats.norm(-3.0, 0.5)]
+    xs = rng.standard_normal((6, 4, 5)) * 3
+    want = sum(d.logpdf(xs[..., c]) for d, c in zip(mixed, (4, 0, 2), strict=True))
+    _assert_same(independent_log_density(mixed, [4, 0, 2])(xs), want)
+
+
+def test_logsumexp_last_equals_scipy():
+    rng = np.random.default_rng(34)
+    a = 300 * rng.standard_normal((5, 3, 64))
+    a[0, 0] = -np.inf                     # a row all -inf
+    a[1, :, ::2] = -np.inf
+    a[2, 1, 5] = 800.0                    # one term far above the rest
+    _assert_same(logsumexp_last(a), logsumexp(a, axis=-1))
