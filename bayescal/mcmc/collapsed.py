@@ -48,6 +48,8 @@ HMC_WEIGHT = 0.3
 IMH_WEIGHT = 0.6
 #: HMC trajectory length in whitened units (sets the leapfrog count from the tuned step)
 HMC_PATH = 1.5
+#: steps adapting the HMC step before a production run is re-run with HMC (discarded)
+HMC_RETUNE = 40
 #: Gauss-Newton iterations of the fused outlier probabilities from each point draw: those
 #: of ``LaserLikelihood.outlier_prob``
 OUTLIER_ITER = 4
@@ -104,6 +106,7 @@ def _diagnostics(lik, info, sampler, fit, prod_moves, target, n_tune_calls, *, t
                "n_gradient_evaluations": int(target.n_grad_calls),
                "tuning_imh_acceptance": fit["imh_acceptance"],
                "hmc_step_size": fit["step_size"], "stopped": info.get("stopped"),
+               "rerun_with_hmc": info.get("rerun_with_hmc"),
                "n_tuning_evaluations": int(n_tune_calls),
                "imh_acceptance": _imh_acceptance(prod_moves)})
 
@@ -303,15 +306,19 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     # (a likelihood whose posterior the independence proposal fits badly asks for more HMC)
     path = getattr(lik, "hmc_path", HMC_PATH)
     n_leap = int(np.clip(round(path / fit["step_size"]), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
-    prod_moves = default_moves(fit["mean"], spd_covariance(fit["cov"], cov_s), value_and_grad=vg,
+    prop_cov = spd_covariance(fit["cov"], cov_s)
+    prod_moves = default_moves(fit["mean"], prop_cov, value_and_grad=vg,
                                weights=getattr(lik, "move_weights", None),
                                **({} if imh_weight is None else {"imh_weight": imh_weight}),
                                step_size=fit["step_size"], n_leapfrog=n_leap) \
         if moves is None else moves
-    sampler = seeded_sampler(n_walkers, ndim, target, rng, prod_moves)
-    info = run_until_converged(sampler, p0, min_ess=min_ess, tau_factor=tau_factor,
-                               max_steps=int(max_steps), chunk=100, progress=progress,
-                               coords=coords, budget=budget, burn_floor=burn_floor)
+    run_kw = {"min_ess": min_ess, "tau_factor": tau_factor, "max_steps": int(max_steps),
+              "chunk": 100, "progress": progress, "coords": coords, "budget": budget,
+              "burn_floor": burn_floor}
+    sampler, prod_moves, info = _production(
+        target, p0, prod_moves, rng, run_kw,
+        rerun=(fit["mean"], prop_cov, fit["step_size"], lik)
+        if vg is None and moves is None and target.has_gradient else None)
     t2 = time.process_time()
     diag = _diagnostics(lik, info, sampler, fit, prod_moves, target, n_tune_calls,
                         tau_factor=tau_factor, min_ess=min_ess)
@@ -323,6 +330,43 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     diag.extra["cpu_seconds"] = {"tuning": t1 - t0, "production": t2 - t1,
                                  "points": time.process_time() - t2}
     return {"psi": psi, "q": q, "diagnostics": diag, "imh_acceptance": imh_acc}
+
+
+def _production(target, p0, moves, rng, run_kw, rerun=None):
+    """The production run (step 4): ``(sampler, moves, info)``. With ``rerun`` (the
+    proposal's mean and covariance, the HMC step and the likelihood) a run the time budget
+    stopped is run again with HMC (:func:`_hmc_rerun`): the independence proposal looked
+    fine in tuning, but the chain stuck in a tail it under-covers (tau grew past the
+    budget; docs/bayes.md section 3)."""
+    sampler = seeded_sampler(*np.shape(getattr(p0, "coords", p0)), target, rng, moves)
+    info = run_until_converged(sampler, p0, **run_kw)
+    if rerun is None or not info.get("stopped"):
+        return sampler, moves, info
+    stopped = info
+    sampler, moves, info = _hmc_rerun(target, sampler, *rerun[:3], rng, rerun[3], run_kw)
+    info["rerun_with_hmc"] = {"n_steps": stopped["n_steps"],
+                              "max_tau": float(np.max(stopped["tau"]))}
+    return sampler, moves, info
+
+
+def _hmc_rerun(target, sampler, mean, cov, step_size, rng, lik, run_kw):
+    """The production run again, with HMC, from the last state of a run without it that the
+    time budget stopped (:data:`HMC_RETUNE` steps adapt the HMC step first, discarded)."""
+    state = sampler.get_last_sample().coords
+    hmc = HMCMove(target.value_and_grad, cov, step_size=step_size, n_steps=HMC_LEAPFROG,
+                  adapt=True)
+    tune = seeded_sampler(len(state), state.shape[1], target, rng,
+                          [(hmc, HMC_WEIGHT), (IndependenceMove(mean, cov, scale=1.1,
+                                                                df=imh_df(len(mean))), IMH_WEIGHT),
+                           (de_move(), 1.0 - HMC_WEIGHT - IMH_WEIGHT)])
+    state = tune.run_mcmc(state, HMC_RETUNE, progress=False).coords
+    path = getattr(lik, "hmc_path", HMC_PATH)
+    n_leap = int(np.clip(round(path / hmc.step_size), HMC_LEAPFROG, 3 * HMC_LEAPFROG))
+    prod = default_moves(mean, cov, value_and_grad=target.value_and_grad,
+                         weights=getattr(lik, "move_weights", None),
+                         step_size=hmc.step_size, n_leapfrog=n_leap)
+    sampler = seeded_sampler(len(state), state.shape[1], target, rng, prod)
+    return sampler, prod, run_until_converged(sampler, state, **run_kw)
 
 
 def posterior_outlier_prob(lik, psi, q, batch=None, max_draws=500):

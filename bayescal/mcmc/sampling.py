@@ -130,8 +130,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
         reported, the message says why), after ``budget`` times the steps its stopping
         rule projected after 200 steps (default 3; a clean chain meets the rule near
         that projection, one whose autocorrelation time keeps growing does not: rows
-        switching between inlier and outlier, several modes). ``None``: run to
-        ``max_steps``. The same with a :class:`~bayescal.FloorPlan`.
+        switching between inlier and outlier, several modes). A run the budget stops
+        that went without HMC is first run again from its last state with HMC added
+        (``post.diagnostics.extra["rerun_with_hmc"]``, ``docs/bayes.md`` section 3).
+        ``None``: run to ``max_steps``. The same with a :class:`~bayescal.FloorPlan`.
     n_samples : int, optional
         Number of joint samples (parameters and points) kept, thinned evenly
         along each walker of the converged chain. The ESS reported is the chain's:

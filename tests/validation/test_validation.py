@@ -84,6 +84,20 @@ def test_collapsed_matches_brute_force():
     assert not bad, f"collapsed and brute-force marginals differ (p < {alpha:.1e}): {bad}"
 
 
+@pytest.mark.slow
+def test_a_chain_stuck_in_a_tail_is_rerun_with_hmc():
+    # rung 3's collapsed posterior with sampler seed 12: without HMC (tuning's independence
+    # acceptance 0.27-0.40, "near-Gaussian") the chain stuck in a tail of the prior-held
+    # xi, gamma, h (tau 9 -> 47) and its time budget stopped it; the rerun with HMC from its
+    # last state converges (tau 11, ~16 s of CPU). Deterministic for the seed: no tolerance.
+    pix, approx, s = _small_problem(6, seed=5)
+    post = _collapsed(pix, approx, s, rng=12, min_ess=2000, n_samples=1000)
+    rerun = post.diagnostics.extra["rerun_with_hmc"]
+    assert post.converged and rerun is not None, post.diagnostics.extra
+    assert rerun["max_tau"] > 2 * np.max(post.tau), (rerun, post.tau)
+    assert "HMCMove" in post.diagnostics.moves
+
+
 def test_collapsed_matches_brute_force_smoke():
     # 4 points, short chains: the two samplers' theta means agree within one posterior
     # sd for u0, v0, beta (the data-dominated ones). The joint starts at the MAP and keeps
