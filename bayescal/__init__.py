@@ -11,7 +11,7 @@ See ``docs/`` for the model, conventions and the public API.
 from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError, OffPlanWarning
 from .checks.inputs import DuplicateRowsWarning
-from .errors import DegenerateInputError, ExtractionError
+from .errors import BayescalError, BayescalWarning, DegenerateInputError, ExtractionError
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
@@ -100,6 +100,8 @@ __all__ = [
     "DuplicateRowsWarning",
     "OffPlanWarning",
     "NoiseCollapseError",
+    "BayescalError",
+    "BayescalWarning",
     "DegenerateInputError",
     "ExtractionError",
     "render_image",

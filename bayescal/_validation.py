@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import InvalidTypeError, InvalidValueError
+
 __all__ = ["as_points", "as_pixels", "as_finite_array", "resolve_rng", "check_positive"]
 
 
@@ -33,15 +35,15 @@ def as_finite_array(value, name, *, last_dim=None, allow_nan=False, dtype=float)
     try:
         arr = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise TypeError(
+        raise InvalidTypeError(
             f"{name} must be a numeric array, got {type(value).__name__}: {exc}"
         ) from None
     if last_dim is not None and (arr.ndim == 0 or arr.shape[-1] != last_dim):
-        raise ValueError(f"{name} must have shape (..., {last_dim}), got shape {arr.shape}")
+        raise InvalidValueError(f"{name} must have shape (..., {last_dim}), got shape {arr.shape}")
     if not allow_nan and not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))
         where = tuple(int(i) for i in bad[0]) if bad.size else ()
-        raise ValueError(
+        raise InvalidValueError(
             f"{name} must contain only finite values; found {arr[where] if where else arr} "
             f"at index {where} ({len(bad)} non-finite entries in all)"
         )
@@ -63,11 +65,11 @@ def check_positive(value, name, *, allow_zero=False):
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
+        raise InvalidTypeError(f"{name} must be a number, got {value!r}") from None
     ok = np.isfinite(v) and (v >= 0 if allow_zero else v > 0)
     if not ok:
         what = "non-negative" if allow_zero else "positive"
-        raise ValueError(f"{name} must be a finite {what} number, got {value!r}")
+        raise InvalidValueError(f"{name} must be a finite {what} number, got {value!r}")
     return v
 
 
@@ -88,9 +90,9 @@ def resolve_rng(rng):
         return rng
     if rng is None or isinstance(rng, (int, np.integer, np.random.SeedSequence)):
         if isinstance(rng, (int, np.integer)) and rng < 0:
-            raise ValueError(f"rng seed must be non-negative, got {rng}")
+            raise InvalidValueError(f"rng seed must be non-negative, got {rng}")
         return np.random.default_rng(rng)
-    raise TypeError(
+    raise InvalidTypeError(
         f"rng must be a numpy.random.Generator, an int seed, a SeedSequence or None, "
         f"got {type(rng).__name__}"
     )

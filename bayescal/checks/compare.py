@@ -19,6 +19,8 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import InvalidValueError
+
 __all__ = ["compare_models", "ModelComparison", "DECISIVE"]
 
 #: a difference of log evidence above this (nats, a Bayes factor of ~20) is decisive
@@ -75,9 +77,10 @@ def _log_evidence(result, k):
     res = getattr(result, "map_result", None) or result      # a posterior: its MAP's
     ev = getattr(res, "extras", {}).get("log_evidence")
     if ev is None or not np.isfinite(ev):
-        raise ValueError(f"results[{k}] has no log evidence (a {getattr(res, 'method', '?')} "
-                         "result or a file saved before it existed); compare simultaneous "
-                         "fits on approximate points or a floor plan")
+        raise InvalidValueError(
+            f"results[{k}] has no log evidence (a {getattr(res, 'method', '?')} "
+            "result or a file saved before it existed); compare simultaneous "
+            "fits on approximate points or a floor plan")
     return float(ev)
 
 
@@ -117,14 +120,14 @@ def compare_models(results):
     """
     results = list(results)
     if len(results) < 2:
-        raise ValueError(f"compare_models needs at least two results, got {len(results)}")
+        raise InvalidValueError(f"compare_models needs at least two results, got {len(results)}")
     ev = np.array([_log_evidence(r, k) for k, r in enumerate(results)])
     px = [getattr(getattr(r, "map_result", None) or r, "extras", {}).get("pixels")
           for r in results]
     if all(p is not None for p in px) and any(
             np.shape(p) != np.shape(px[0]) or not np.allclose(p, px[0]) for p in px[1:]):
-        raise ValueError("compare_models compares fits of the same data; the results' "
-                         "pixels differ")
+        raise InvalidValueError("compare_models compares fits of the same data; the results' "
+                                "pixels differ")
     best = int(np.argmax(ev))
     w = np.exp(ev - ev[best])
     w /= w.sum()

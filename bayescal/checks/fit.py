@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import BayescalError, BayescalWarning
 from .rows import rows_text as _rows_text
 
 __all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
@@ -34,7 +35,7 @@ NOISE_RATIO_LIMIT = 1.5
 GROSS_RATIO = 2.0
 
 
-class NoiseCollapseError(ValueError):
+class NoiseCollapseError(BayescalError, ValueError):
     """An inferred noise level ended at its prior bound.
 
     Attributes
@@ -215,7 +216,7 @@ def flag_untrusted(result, prior, m, dof, *, noise_inferred):
     result.extras["failed_rows"] = rows
 
 
-class OffPlanWarning(UserWarning):
+class OffPlanWarning(BayescalWarning):
     """Blocks of neighbouring laser points off their wall were set aside as outliers.
 
     Furniture, a person in front of a wall, or an opening the floor plan does not show

@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from .._validation import as_pixels, as_points
+from ..errors import BayescalWarning
 from ..errors import DegenerateInputError as _Degenerate
 from .rows import rows_text as _rows_text
 
@@ -27,7 +28,7 @@ MIN_POINTS = 4
 MIN_AZIMUTH_COVERAGE_DEG = 45.0
 
 
-class DuplicateRowsWarning(UserWarning):
+class DuplicateRowsWarning(BayescalWarning):
     """Exact duplicate input rows (each would count twice and shrink every sd)."""
 
 

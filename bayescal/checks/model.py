@@ -33,6 +33,7 @@ import dataclasses
 
 import numpy as np
 
+from ..errors import InvalidValueError
 from ..likelihood.scene_noise import scene_range
 from .datafile import OUTLIER_FLAG
 from .misalignment import harmonic_statistic
@@ -186,9 +187,9 @@ def _result_data(result, pixels, approx_points):
     pix = ex.get("pixels") if pixels is None else pixels
     apx = ex.get("approx_points") if approx_points is None else approx_points
     if pix is None:
-        raise ValueError("this result does not carry the pixels it was fitted to (a file "
-                         "written by an older bayescal): pass pixels=... (and "
-                         "approx_points=...) to model_check")
+        raise InvalidValueError("this result does not carry the pixels it was fitted to (a file "
+                                "written by an older bayescal): pass pixels=... (and "
+                                "approx_points=...) to model_check")
     return np.asarray(pix, float), None if apx is None else np.asarray(apx, float), \
         {"sigma_px": ex.get("sigma_px")}
 
@@ -233,14 +234,14 @@ def model_check(result, *, pixels=None, approx_points=None, info=None, rng=0, al
     True
     """
     if getattr(result, "method", None) == "sequential":
-        raise ValueError("model_check applies to simultaneous and Bayesian results; for the "
-                         "sequential method see bayescal.sequential_residuals")
+        raise InvalidValueError("model_check applies to simultaneous and Bayesian results; for the "
+                                "sequential method see bayescal.sequential_residuals")
     pix, apx, found = _result_data(result, pixels, approx_points)
     info = found if info is None else {**found, **{k: v for k, v in info.items() if v is not None}}
     check = predictive_check(result, info, pix, approx_points=apx, rng=rng, alpha=alpha)
     if check is None:
-        raise ValueError("the result carries no noise level to standardize its residuals "
-                         "with; refit it with this bayescal")
+        raise InvalidValueError("the result carries no noise level to standardize its residuals "
+                                "with; refit it with this bayescal")
     p, obs, exp, msgs = (dict(check["p_values"]), dict(check["observed"]),
                          dict(check["expected"]), [])
     for stat in STATISTICS:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_pixels, as_points, resolve_rng
+from ..errors import InvalidValueError
 
 __all__ = ["posterior_predictive_residuals", "posterior_predictive_check"]
 
@@ -53,8 +54,8 @@ def posterior_predictive_residuals(param_samples, point_samples, pixels, approx_
     pix = as_pixels(pixels, "pixels")
     apx = as_points(approx_points, "approx_points")
     if a.ndim != 2 or a.shape[1] != 8 or P.shape != (len(a), len(pix), 3):
-        raise ValueError(f"param_samples must have shape (S, 8) and point_samples (S, N, 3) "
-                         f"= ({len(a)}, {len(pix)}, 3), got {a.shape} and {P.shape}")
+        raise InvalidValueError(f"param_samples must have shape (S, 8) and point_samples (S, N, 3) "
+                                f"= ({len(a)}, {len(pix)}, 3), got {a.shape} and {P.shape}")
     theta = to_identifiable(a)
     uv, _ = project_theta(theta[:, None, :], P)
     sp = np.broadcast_to(np.asarray(sigma_px, dtype=float), (len(a),))

@@ -26,7 +26,7 @@ from ..checks.datafile import (
     sigma_scene_setting,
     warn_duplicates,
 )
-from ..errors import UsageError
+from ..errors import InvalidTypeError, UsageError
 from ..io.outputs import check_out
 from ..sensor.parameters import CAMERA_PARAM_NAMES
 from . import options as op
@@ -43,7 +43,7 @@ def _opts(table, given):
     o = op.defaults(table)
     unknown = set(given) - set(o)
     if unknown:
-        raise TypeError(f"unknown option(s) {sorted(unknown)}; expected some of {sorted(o)}")
+        raise InvalidTypeError(f"unknown option(s) {sorted(unknown)}; expected some of {sorted(o)}")
     o.update(given)
     return o
 

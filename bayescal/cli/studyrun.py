@@ -16,7 +16,7 @@ import pathlib
 import sys
 import time
 
-from ..errors import UsageError
+from ..errors import InvalidValueError, OutputExistsError, UsageError
 from ..validation.executors import executor, run_trials  # noqa: F401 (the study scripts' runner)
 
 __all__ = ["studies_dir", "list_studies", "find_study", "NOT_STUDIES", "parse_args",
@@ -93,14 +93,14 @@ class OutputDir:
         self.path = pathlib.Path(path)
         existing = [n for n in names if (self.path / n).exists()]
         if existing and not force:
-            raise FileExistsError(f"--out {str(self.path)!r} already holds {existing}; "
-                                  "pass --force to overwrite them")
+            raise OutputExistsError(f"--out {str(self.path)!r} already holds {existing}; "
+                                    "pass --force to overwrite them")
         self.path.mkdir(parents=True, exist_ok=True)
         self.names = tuple(names)
 
     def __truediv__(self, name):
         if name not in self.names:
-            raise ValueError(f"{name!r} is not among the declared result files {self.names}")
+            raise InvalidValueError(f"{name!r} is not among the declared result files {self.names}")
         return self.path / name
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from ..errors import DegenerateInputError
+from ..errors import DegenerateInputError, InvalidValueError
 from ..image.views import as_views
 from ..likelihood.boards import NOISE_MODELS, BoardLikelihood
 from ..results.camera import CameraResult
@@ -170,12 +170,12 @@ def _image_size(views, image_size):
     if image_size is not None:
         size = tuple(int(s) for s in image_size)
         if len(size) != 2 or min(size) <= 0:
-            raise ValueError(f"image_size must be (width, height) > 0, got {image_size!r}")
+            raise InvalidValueError(f"image_size must be (width, height) > 0, got {image_size!r}")
         return size
     sizes = {v.image_size for v in views if v.image_size is not None}
     if len(sizes) > 1:
-        raise ValueError(f"views come from images of different sizes {sorted(sizes)}; "
-                         "pass image_size")
+        raise InvalidValueError(f"views come from images of different sizes {sorted(sizes)}; "
+                                "pass image_size")
     if sizes:
         return sizes.pop()
     px = np.concatenate([v.pixels for v in views])
@@ -239,19 +239,19 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
     """
     views = as_views(views)
     if noise not in NOISE_MODELS:
-        raise ValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
+        raise InvalidValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
     if estimator not in ("weighted", "gls"):
-        raise ValueError(f"estimator must be 'weighted' or 'gls', got {estimator!r}")
+        raise InvalidValueError(f"estimator must be 'weighted' or 'gls', got {estimator!r}")
     size = _image_size(views, image_size)
     lik = BoardLikelihood(views, degree=degree)
     fixed = None
     if init is not None:
         if isinstance(init, dict) and not set(CAMERA_NAMES) <= set(init):
-            raise ValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
+            raise InvalidValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
         fixed = np.array([init[n] for n in CAMERA_NAMES] if isinstance(init, dict) else init,
                          float)
         if fixed.shape != (5,) or not np.all(np.isfinite(fixed)):
-            raise ValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
+            raise InvalidValueError(f"init must give the 5 intrinsics {CAMERA_NAMES}, got {init!r}")
     try:
         k0, poses0 = start_camera(lik, size, signs=signs, fixed=fixed)
         if noise == "view-systematic" and estimator == "weighted":

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
 from ..results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -31,7 +32,8 @@ def calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):
     from ..sensor.laser import triangulate_theta
 
     if lik.infer_px or lik.infer_scene:
-        raise ValueError("estimate_points=False needs sigma_px and sigma_scene given (not None)")
+        raise InvalidValueError(
+            "estimate_points=False needs sigma_px and sigma_scene given (not None)")
     sig = lik.sigma_px
     P = lik.approx
     phi = float(prior.dists["phi"].mean())

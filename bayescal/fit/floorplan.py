@@ -1,19 +1,18 @@
 """Least squares on a floor plan: MAP and Laplace covariance of sensor and walls.
 
-Unknowns: ``g = (theta (7), phi, d_0, a_0, ..., d_{W-1}, a_{W-1})`` and one
-azimuth ``t_i`` per laser point; rows: two whitened pixel residuals per point
+Unknowns: ``g = (theta (7), phi, d_0, a_0, ..., d_{W-1}, a_{W-1})`` and one azimuth ``t_i``
+per laser point; rows: two whitened pixel residuals per point
 (:class:`~bayescal.likelihood.floorplan.PlanLikelihood`), the eight sensor prior rows
-(:class:`~bayescal.likelihood.priors.Prior`, ``phi`` seen by its prior only, as in the
-per-point method) and ``2W`` wall prior rows from the plan. With the misaligned laser
-model, ``g = (theta, pose (4), phi, walls)`` and four pose prior rows
-(:class:`~bayescal.likelihood.plan_misaligned.MisalignedPlanLikelihood`). Levenberg-Marquardt
-with the scalar azimuths eliminated by a Schur complement: O(N) per iteration.
+(:class:`~bayescal.likelihood.priors.Prior`, ``phi`` seen by its prior only, as in the per-point
+method) and ``2W`` wall prior rows; misaligned, ``g = (theta, pose (4), phi, walls)`` and four
+pose rows (:class:`~bayescal.likelihood.plan_misaligned.MisalignedPlanLikelihood`).
+Levenberg-Marquardt with the azimuths eliminated by a Schur complement: O(N) per iteration.
 
-Each point's wall is re-decided at every iteration from its azimuth and the
-current corner azimuths (the cost is continuous across a corner: both walls
-meet there). With the Jeffreys point prior and a one-dimensional latent, the
-maximum over ``(g, t)`` is also the maximum of the collapsed posterior the
-sampler explores, and the inverse Schur complement is its Laplace covariance.
+Each point's wall is re-decided at every iteration from its azimuth and the current corner
+azimuths (the cost is continuous across a corner: both walls meet there). With the Jeffreys
+point prior and a one-dimensional latent, the maximum over ``(g, t)`` is also the maximum of
+the collapsed posterior the sampler explores; the inverse Schur complement is its Laplace
+covariance.
 """
 
 from __future__ import annotations
@@ -21,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..checks.fit import flag_untrusted
+from ..errors import InvalidTypeError, InvalidValueError
 from ..likelihood.outliers import (
     OUTLIER_PRIOR,
     OUTLIER_SCALE,
@@ -147,8 +147,8 @@ def _solve(lik, prior, g, t, sig, *, max_iter=200, ftol=1e-12, xtol=1e-10, free=
     lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
     cost, ne = _normal_equations(lik, prior, g, t, sig)
     if not np.isfinite(cost):
-        raise ValueError("the starting point puts some laser points outside the model's "
-                         "domain (non-finite residuals); give a better init or plan")
+        raise InvalidValueError("the starting point puts some laser points outside the model's "
+                                "domain (non-finite residuals); give a better init or plan")
     n_done = 0
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
         # the two closures are called within this iteration only (so B023 does not apply)
@@ -192,17 +192,17 @@ def _fit(pixels, plan, *, sigma_px, prior, init, max_iter, outliers=True,
     ``"misaligned"`` fits the laser cone's pose too (starting at its prior mean).
     """
     if not isinstance(plan, FloorPlan):
-        raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
+        raise InvalidTypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     if init is None:
         init = prior.mean()
     elif not isinstance(init, SensorParams):
-        raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
+        raise InvalidTypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
     lik = plan_likelihood(model, pixels, plan, prior, sigma_px=sigma_px, azimuth_params=init,
                           outliers=outliers, outlier_scale=outlier_scale,
                           outlier_prior=outlier_prior, pixel_cov=pixel_cov)
     if lik.n < 4:
-        raise ValueError(f"need at least 4 laser points, got N={lik.n}")
+        raise InvalidValueError(f"need at least 4 laser points, got N={lik.n}")
     best = None
     for staged in (True, False):            # both from init: neither is always the better
         try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
 from ..sensor.laser import cone_points_geo
 
 __all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "SINGULAR_FLOOR", "STALL_WINDOW",
@@ -147,8 +148,8 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     lam, nfev, converged, message = 1e-3, 1, False, "maximum number of iterations reached"
     cost, A, B, C, gt, gq, R = _normal_equations(lik, prior, theta, q, sig, w_scene, u)
     if not np.isfinite(cost):
-        raise ValueError("the starting point puts some laser points outside the model's "
-                         "domain (non-finite residuals); give a better init")
+        raise InvalidValueError("the starting point puts some laser points outside the model's "
+                                "domain (non-finite residuals); give a better init")
     n_done, history = 0, [cost]
     for n_done in range(1, max_iter + 1):  # noqa: B007 (n_done is reported after the loop)
         # the two closures are called within this iteration only (so B023 does not apply)

@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._validation import as_finite_array, as_pixels, check_positive
+from ..errors import InvalidTypeError, InvalidValueError
 from ..results.calibration import (
     CalibrationResult,
     ConvergenceError,
@@ -75,13 +76,14 @@ def _unpack(dataset):
     if isinstance(dataset, Dataset):
         calib = dataset.calibration
         if calib is None:
-            raise ValueError("dataset has no calibration data (dataset.calibration is None); "
-                             "the sequential method needs calibration patterns")
+            raise InvalidValueError(
+                "dataset has no calibration data (dataset.calibration is None); "
+                "the sequential method needs calibration patterns")
         return calib, as_pixels(dataset.pixels, "dataset.pixels")
     if isinstance(dataset, CalibrationData):
         return dataset, None
-    raise TypeError(f"dataset must be a bayescal.Dataset or a bayescal.CalibrationData, "
-                    f"got {type(dataset).__name__}")
+    raise InvalidTypeError(f"dataset must be a bayescal.Dataset or a bayescal.CalibrationData, "
+                           f"got {type(dataset).__name__}")
 
 
 def _check_calibration(calib):
@@ -93,22 +95,23 @@ def _check_calibration(calib):
     laser_plane = np.asarray(calib.laser_plane)
     if grid_w.ndim != 2 or grid_pix.shape != (len(grid_w), 2) or grid_plane.shape != (
             len(grid_w),):
-        raise ValueError(f"{pre}grid_points (M, 3), grid_pixels (M, 2) and grid_plane (M,) "
-                         f"must have matching lengths, got shapes {grid_w.shape}, "
-                         f"{grid_pix.shape}, {grid_plane.shape}")
+        raise InvalidValueError(f"{pre}grid_points (M, 3), grid_pixels (M, 2) and grid_plane (M,) "
+                                f"must have matching lengths, got shapes {grid_w.shape}, "
+                                f"{grid_pix.shape}, {grid_plane.shape}")
     if laser_pix.ndim != 2 or laser_plane.shape != (len(laser_pix),):
-        raise ValueError(f"{pre}laser_pixels (K, 2) and laser_plane (K,) must have matching "
-                         f"lengths, got shapes {laser_pix.shape}, {laser_plane.shape}")
+        raise InvalidValueError(f"{pre}laser_pixels (K, 2) and laser_plane (K,) must have matching "
+                                f"lengths, got shapes {laser_pix.shape}, {laser_plane.shape}")
     if 2 * len(grid_w) <= _N1 + 1:
-        raise ValueError(f"too few grid points: {pre}grid_points has {len(grid_w)}, need at "
-                         f"least {(_N1 + 2) // 2 + 1} for {_N1} unknowns and a noise estimate")
+        raise InvalidValueError(
+            f"too few grid points: {pre}grid_points has {len(grid_w)}, need at "
+            f"least {(_N1 + 2) // 2 + 1} for {_N1} unknowns and a noise estimate")
     if len(laser_pix) < 3:
-        raise ValueError(f"too few laser pixels: {pre}laser_pixels has {len(laser_pix)}, "
-                         "need at least 3")
+        raise InvalidValueError(f"too few laser pixels: {pre}laser_pixels has {len(laser_pix)}, "
+                                "need at least 3")
     for name, idx in (("grid_plane", grid_plane), ("laser_plane", laser_plane)):
         if not np.issubdtype(idx.dtype, np.integer) or (idx.size and idx.min() < 0):
-            raise ValueError(f"{pre}{name} must hold non-negative integer plane indices, "
-                             f"got dtype {idx.dtype}")
+            raise InvalidValueError(f"{pre}{name} must hold non-negative integer plane indices, "
+                                    f"got dtype {idx.dtype}")
     return grid_w, grid_pix, grid_plane, laser_pix, laser_plane
 
 
@@ -118,8 +121,9 @@ def _fit_calibration_planes(grid_w, grid_plane, laser_plane):
     for j in np.unique(laser_plane):
         pts = grid_w[grid_plane == j]
         if len(pts) < 3:
-            raise ValueError(f"calibration plane {j} carries laser pixels but only {len(pts)} "
-                             "grid points; at least 3 (not on a line) are needed to fit it")
+            raise InvalidValueError(
+                f"calibration plane {j} carries laser pixels but only {len(pts)} "
+                "grid points; at least 3 (not on a line) are needed to fit it")
         planes[j], _ = fit_plane(pts)
     return planes
 
@@ -127,17 +131,17 @@ def _fit_calibration_planes(grid_w, grid_plane, laser_plane):
 def _check_options(init, init_pose, fix_phi, sigma_px):
     init = SensorParams.paper() if init is None else init
     if not isinstance(init, SensorParams):
-        raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
+        raise InvalidTypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
     pose0 = np.zeros(6) if init_pose is None else as_finite_array(init_pose, "init_pose")
     if pose0.shape != (6,):
-        raise ValueError(f"init_pose must have shape (6,) {POSE_NAMES}, got {pose0.shape}")
+        raise InvalidValueError(f"init_pose must have shape (6,) {POSE_NAMES}, got {pose0.shape}")
     try:
         fix_phi = float(fix_phi)
     except (TypeError, ValueError):
-        raise TypeError(f"fix_phi must be a number, got {fix_phi!r}") from None
+        raise InvalidTypeError(f"fix_phi must be a number, got {fix_phi!r}") from None
     if not np.isfinite(fix_phi) or init.xi + fix_phi <= 0:
-        raise ValueError(f"fix_phi must be finite with xi + fix_phi > 0, got {fix_phi!r} "
-                         f"(init.xi = {init.xi})")
+        raise InvalidValueError(f"fix_phi must be finite with xi + fix_phi > 0, got {fix_phi!r} "
+                                f"(init.xi = {init.xi})")
     if sigma_px is not None:
         sigma_px = check_positive(sigma_px, "sigma_px")
     return init, pose0, fix_phi, sigma_px
@@ -145,7 +149,7 @@ def _check_options(init, init_pose, fix_phi, sigma_px):
 
 def _check_count(value, name, *, minimum):
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise InvalidValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
 
@@ -199,14 +203,15 @@ def sequential_residuals(result):
         or a file written before they were kept).
     """
     if not isinstance(result, CalibrationResult):
-        raise TypeError(f"result must be a CalibrationResult, got {type(result).__name__}")
+        raise InvalidTypeError(f"result must be a CalibrationResult, got {type(result).__name__}")
     if result.method != "sequential":
-        raise ValueError(f"result must come from calibrate_sequential, got method "
-                         f"{result.method!r}")
+        raise InvalidValueError(f"result must come from calibrate_sequential, got method "
+                                f"{result.method!r}")
     missing = [k for k in _RESIDUAL_KEYS if result.extras.get(k) is None]
     if missing:
-        raise ValueError(f"result.extras has no {', '.join(missing)}: a failed run, or a file "
-                         "written before the residuals were kept")
+        raise InvalidValueError(
+            f"result.extras has no {', '.join(missing)}: a failed run, or a file "
+            "written before the residuals were kept")
     a, b, c, d = (np.asarray(result.extras[k], float) for k in _RESIDUAL_KEYS)
     return SequentialResiduals(a.reshape(-1, 2), b.reshape(-1, 2), c.ravel(), d.ravel())
 
@@ -305,13 +310,13 @@ def calibrate_sequential(dataset, *, init=None, init_pose=None, fix_phi=0.0, fit
     grid_w, grid_pix, grid_plane, laser_pix, laser_plane = _check_calibration(calib)
     init, pose0, fix_phi, sigma_px = _check_options(init, init_pose, fix_phi, sigma_px)
     if fit not in _FITS:
-        raise ValueError(f"fit must be one of {_FITS}, got {fit!r}")
+        raise InvalidValueError(f"fit must be one of {_FITS}, got {fit!r}")
     if model not in ("aligned", "misaligned"):
-        raise ValueError(f"model must be one of ('aligned', 'misaligned'), got {model!r}")
+        raise InvalidValueError(f"model must be one of ('aligned', 'misaligned'), got {model!r}")
     if model == "misaligned" and fit != "cone":
-        raise ValueError("model='misaligned' needs fit='cone' (a plane has no axis to tilt)")
+        raise InvalidValueError("model='misaligned' needs fit='cone' (a plane has no axis to tilt)")
     if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+        raise InvalidValueError(f"method must be one of {_METHODS}, got {method!r}")
     max_nfev = _check_count(max_nfev, "max_nfev", minimum=1)
     restarts = _check_count(restarts, "restarts", minimum=0)
     planes_w = _fit_calibration_planes(grid_w, grid_plane, laser_plane)
@@ -445,7 +450,7 @@ def _params(theta, phi):
     try:
         return SensorParams.from_identifiable(theta, phi)
     except ValueError as exc:
-        raise ValueError(f"the estimate is not a valid sensor for fix_phi = {phi}: {exc}") from None
+        raise InvalidValueError(f"fix_phi = {phi} gives no valid sensor: {exc}") from None
 
 
 def _result(params, theta, cov7, points, rms_extra, s1, C1, P, info, report, extras, *,

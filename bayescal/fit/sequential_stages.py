@@ -20,6 +20,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import least_squares
 
 from .._validation import as_finite_array, resolve_rng
+from ..errors import InvalidValueError
 from ..sensor.camera import backproject_theta, project_theta
 from ..sensor.laser import cone_distance
 from ..sensor.pose import cone_distance_pose
@@ -114,11 +115,11 @@ def fit_plane(points):
     """
     P = as_finite_array(points, "points", last_dim=3)
     if P.ndim != 2 or P.shape[0] < 3:
-        raise ValueError(f"points must have shape (K, 3) with K >= 3, got {P.shape}")
+        raise InvalidValueError(f"points must have shape (K, 3) with K >= 3, got {P.shape}")
     c = P.mean(axis=0)
     _, s, vt = np.linalg.svd(P - c, full_matrices=False)
     if s[1] <= 1e-12 * max(s[0], 1e-300):
-        raise ValueError("points lie on a line (or coincide): the plane is undetermined")
+        raise InvalidValueError("points lie on a line (or coincide): the plane is undetermined")
     n = vt[2]
     d = -n @ c
     if d < 0:
@@ -199,9 +200,9 @@ def run_stage1(grid_w, grid_pix, init, pose0, *, method, max_nfev, restarts, rng
         if finite and (best is None or sol.cost < best.cost or not best.success):
             best = sol
     if best is None:
-        raise ValueError("init/init_pose project some calibration grid points outside the "
-                         "camera model (xi * r - z <= 0); give a starting point closer to "
-                         "the sensor")
+        raise InvalidValueError("init/init_pose project some calibration grid points outside the "
+                                "camera model (xi * r - z <= 0); give a starting point closer to "
+                                "the sensor")
     best.nfev = nfev
     return best
 
@@ -216,9 +217,9 @@ def run_pose_stage(grid_w, grid_pix, cam5, pose0, *, method, max_nfev):
         return stage1_residuals(np.r_[cam5, p], grid_w, grid_pix)
 
     if not np.all(np.isfinite(fun(pose0))):
-        raise ValueError("init_pose projects some calibration grid points outside the "
-                         "camera model (xi * r - z <= 0); give a starting pose closer to "
-                         "the patterns")
+        raise InvalidValueError("init_pose projects some calibration grid points outside the "
+                                "camera model (xi * r - z <= 0); give a starting pose closer to "
+                                "the patterns")
     sol = _solve(fun, lambda p: stage1_residuals(np.r_[cam5, p], grid_w, grid_pix,
                                                  jacobian=True)[:, 5:],
                  np.asarray(pose0, float), method=method, max_nfev=max_nfev)

@@ -26,6 +26,7 @@ import numpy as np
 from .._validation import check_positive
 from ..checks.fit import NoiseCollapseError, check_noise_levels, flag_untrusted, worst_rows
 from ..checks.inputs import check_calibration_input
+from ..errors import InvalidTypeError, InvalidValueError, UnsupportedError
 from ..likelihood.misaligned import MisalignedLikelihood
 from ..likelihood.outliers import NOISE_TRIM, OUTLIER_PRIOR, OUTLIER_SCALE
 from ..likelihood.points import LaserLikelihood
@@ -61,7 +62,7 @@ MODELS = ("aligned", "misaligned")
 def check_model(model):
     """``model`` as one of :data:`MODELS`, else a ValueError naming it."""
     if not isinstance(model, str) or model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+        raise InvalidValueError(f"model must be one of {MODELS}, got {model!r}")
     return model
 
 
@@ -70,7 +71,7 @@ def _resolve_init(init, prior):
         return prior.mean()
     if isinstance(init, SensorParams):
         return init
-    raise TypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
+    raise InvalidTypeError(f"init must be a SensorParams or None, got {type(init).__name__}")
 
 
 _REQUIRED = object()      # sigma_scene: required with approximate points, absent with a plan
@@ -209,29 +210,30 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     ring_corr_deg = _ring_corr(ring_corr_deg, approx_points)
     prior = as_prior(prior, camera)
     if model == "misaligned" and not estimate_points:
-        raise NotImplementedError("model='misaligned' needs the points estimated "
+        raise UnsupportedError("model='misaligned' needs the points estimated "
                                   "(estimate_points=True, or a FloorPlan)")
     if pixel_cov is not None and not estimate_points:
-        raise TypeError("pixel_cov needs estimate_points=True")
+        raise InvalidTypeError("pixel_cov needs estimate_points=True")
     if pixel_cov is not None and sigma_px is None and not isinstance(approx_points, FloorPlan):
-        raise ValueError("with pixel_cov and approximate points, sigma_px is the scale on the "
-                         "covariances and must be given (1.0: as they are); it is inferred "
-                         "only with a FloorPlan (docs/images.md)")
+        raise InvalidValueError(
+            "with pixel_cov and approximate points, sigma_px is the scale on the "
+            "covariances and must be given (1.0: as they are); it is inferred "
+            "only with a FloorPlan (docs/images.md)")
     if isinstance(approx_points, FloorPlan):
         if sigma_scene is not _REQUIRED or not estimate_points:
-            raise TypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
-                            "(the plan carries its own sds); leave them out")
+            raise InvalidTypeError("with a FloorPlan, sigma_scene and estimate_points do not apply "
+                                   "(the plan carries its own sds); leave them out")
         return _with_offset(calibrate_plan(
             pixels, approx_points, sigma_px=sigma_px, prior=prior, init=init,
             absolute_sigma=absolute_sigma, max_iter=max_iter, raise_on_failure=raise_on_failure,
             outliers=outliers, outlier_scale=outlier_scale, outlier_prior=outlier_prior,
             pixel_cov=pixel_cov, model=model, ring_corr_deg=ring_corr_deg), offset_sd)
     if sigma_scene is _REQUIRED:
-        raise TypeError("calibrate_simultaneous() missing required keyword argument "
-                        "'sigma_scene' (needed with approximate points)")
+        raise InvalidTypeError("calibrate_simultaneous() missing required keyword argument "
+                               "'sigma_scene' (needed with approximate points)")
     init = _resolve_init(init, prior)
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+        raise InvalidValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     pixels, approx_points = check_calibration_input(pixels, approx_points,
                                                     sigma_scene=sigma_scene,
                                                     center=(init.u0, init.v0))
@@ -270,8 +272,8 @@ def _ring_corr(deg, approx_points):
     """``deg`` checked: non-negative, and positive only with a FloorPlan."""
     deg = check_positive(deg, "ring_corr_deg", allow_zero=True)
     if deg > 0 and not isinstance(approx_points, FloorPlan):
-        raise ValueError(f"ring_corr_deg={deg!r} needs a FloorPlan (the points' azimuths); "
-                         "with approximate points leave it 0")
+        raise InvalidValueError(f"ring_corr_deg={deg!r} needs a FloorPlan (the points' azimuths); "
+                                "with approximate points leave it 0")
     return deg
 
 

@@ -21,6 +21,7 @@ import os
 
 import numpy as np
 
+from ..errors import InvalidValueError, MissingDependencyError
 from .read import as_gray, read_image
 from .views import BoardView, board_points, board_shape
 
@@ -33,7 +34,7 @@ def _cv2():
     try:
         import cv2
     except ImportError:
-        raise ImportError(
+        raise MissingDependencyError(
             "find_chessboard needs OpenCV: pip install bayescal[camera] "
             "(installs opencv-contrib-python-headless)"
         ) from None
@@ -162,9 +163,9 @@ def find_chessboard(image, board=(8, 6), square=42.0, *, method="classic", windo
     nx, ny = board_shape(board)
     points = board_points((nx, ny), square)
     if method not in _METHODS:
-        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+        raise InvalidValueError(f"method must be one of {_METHODS}, got {method!r}")
     if window is not None and int(window) < 1:
-        raise ValueError(f"window must be a positive half-size in px, got {window!r}")
+        raise InvalidValueError(f"window must be a positive half-size in px, got {window!r}")
     cv2 = _cv2()
     gray, default_name = _load(image)
     h, w = gray.shape

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter, median_filter
 
 from .._validation import check_positive
+from ..errors import InvalidValueError
 from .doubt import check_colour, check_ring, colour_heights, is_white
 from .locate import ring_candidates
 from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
@@ -106,7 +107,8 @@ def _signal(image, background, channel):
         return s, noise_model(s)(s), img, img >= top
     bg = as_gray(background, channel=channel, name="background")
     if bg.shape != img.shape:
-        raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
+        raise InvalidValueError(
+            f"background must have the image's shape {img.shape}, got {bg.shape}")
     # var(on - off) = var(on) + var(off) = 2a + b (on + off): fitted on the difference, where
     # the texture cancels, against the mean level of the two exposures
     on, off = smooth(img), smooth(bg)
@@ -209,11 +211,12 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     if center is not None:
         c = np.asarray(center, dtype=float)
         if c.shape != (2,) or not np.all(np.isfinite(c)):
-            raise ValueError(f"center must be (u, v) px, finite, got {center!r}")
+            raise InvalidValueError(f"center must be (u, v) px, finite, got {center!r}")
     if radius is not None:
         radius = tuple(float(x) for x in np.ravel(radius))
         if len(radius) != 2 or not 0 <= radius[0] < radius[1]:
-            raise ValueError(f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
+            raise InvalidValueError(
+                f"radius must be (low, high) px with 0 <= low < high, got {radius!r}")
     cands, gains, mirror = ring_candidates(sig, raw, sat, center, radius, n_azimuth=n_azimuth,
                                            highpass_px=highpass_px, runner_up=check)
     lp, cand, gates = _choose(cands, sig, var_img, min_snr=min_snr, gate_px=gate_px,

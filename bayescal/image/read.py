@@ -6,6 +6,8 @@ import os
 
 import numpy as np
 
+from ..errors import InvalidTypeError, InvalidValueError, MissingFileError
+
 __all__ = ["as_gray", "read_image", "mosaic_ratio", "demosaiced_blur", "MOSAIC_RATIO",
            "MOSAIC_BLUR"]
 
@@ -46,11 +48,11 @@ def read_image(path, *, channel=0, raw=False):
 
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"image file {path!r} does not exist")
+        raise MissingFileError(f"image file {path!r} does not exist")
     try:
         arr = iio.imread(path)
     except Exception as exc:  # imageio raises several types for an unreadable file
-        raise ValueError(f"cannot read image {path!r}: {exc}") from None
+        raise InvalidValueError(f"cannot read image {path!r}: {exc}") from None
     gray = as_gray(arr, channel=channel, name=f"image {path!r}")
     return np.asarray(arr) if raw else gray
 
@@ -72,18 +74,18 @@ def as_gray(image, *, channel=0, name="image"):
     """
     arr = np.asarray(image)
     if arr.dtype == bool or not np.issubdtype(arr.dtype, np.number):
-        raise TypeError(f"{name} must be a numeric array, got dtype {arr.dtype}")
+        raise InvalidTypeError(f"{name} must be a numeric array, got dtype {arr.dtype}")
     if arr.ndim == 3:
         if not 0 <= int(channel) < min(arr.shape[2], 3):
-            raise ValueError(f"channel must be 0-{min(arr.shape[2], 3) - 1} for {name} "
-                             f"with {arr.shape[2]} channels, got {channel!r}")
+            raise InvalidValueError(f"channel must be 0-{min(arr.shape[2], 3) - 1} for {name} "
+                                    f"with {arr.shape[2]} channels, got {channel!r}")
         arr = arr[..., int(channel)]
     if arr.ndim != 2 or min(arr.shape) < 16:
-        raise ValueError(f"{name} must have shape (H, W) or (H, W, C) with H, W >= 16, "
-                         f"got {arr.shape}")
+        raise InvalidValueError(f"{name} must have shape (H, W) or (H, W, C) with H, W >= 16, "
+                                f"got {arr.shape}")
     out = arr.astype(float)
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+        raise InvalidValueError(f"{name} contains NaN or infinite values")
     return out
 
 

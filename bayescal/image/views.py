@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._validation import as_pixels, as_points
+from ..errors import InvalidTypeError, InvalidValueError
 
 __all__ = ["BoardView", "board_points", "board_shape", "as_views"]
 
@@ -23,9 +24,10 @@ def board_shape(board):
     try:
         nx, ny = (int(b) for b in board)
     except (TypeError, ValueError):
-        raise TypeError(f"board must be a pair of ints (columns, rows), got {board!r}") from None
+        raise InvalidTypeError(
+            f"board must be a pair of ints (columns, rows), got {board!r}") from None
     if nx < 2 or ny < 2:
-        raise ValueError(f"board must have at least 2 x 2 inner corners, got {board!r}")
+        raise InvalidValueError(f"board must have at least 2 x 2 inner corners, got {board!r}")
     return nx, ny
 
 
@@ -48,7 +50,7 @@ def board_points(board, square):
     nx, ny = board_shape(board)
     s = float(square)
     if not np.isfinite(s) or s <= 0:
-        raise ValueError(f"square must be a positive size in mm, got {square!r}")
+        raise InvalidValueError(f"square must be a positive size in mm, got {square!r}")
     j, i = np.mgrid[0:ny, 0:nx]
     return np.stack([i.ravel() * s, j.ravel() * s, np.zeros(nx * ny)], axis=-1)
 
@@ -87,18 +89,18 @@ class BoardView:
         px = as_pixels(self.pixels, f"pixels of {self.name}")
         pt = as_points(self.points, f"points of {self.name}")
         if px.ndim != 2 or pt.ndim != 2 or len(px) != len(pt):
-            raise ValueError(
+            raise InvalidValueError(
                 f"{self.name}: pixels must have shape (M, 2) and points (M, 3) with the same M, "
                 f"got {px.shape} and {pt.shape}"
             )
         if len(px) < 4:
-            raise ValueError(f"{self.name}: a view needs at least 4 corners, got {len(px)}")
+            raise InvalidValueError(f"{self.name}: a view needs at least 4 corners, got {len(px)}")
         object.__setattr__(self, "pixels", px)
         object.__setattr__(self, "points", pt)
         if self.covariance is not None:
             cov = np.asarray(self.covariance, dtype=float)
             if cov.shape != (len(px), 2, 2) or not np.all(np.isfinite(cov)):
-                raise ValueError(
+                raise InvalidValueError(
                     f"{self.name}: covariance must be finite with shape ({len(px)}, 2, 2), "
                     f"got shape {cov.shape}"
                 )
@@ -106,7 +108,7 @@ class BoardView:
         if self.image_size is not None:
             size = tuple(int(s) for s in self.image_size)
             if len(size) != 2 or min(size) <= 0:
-                raise ValueError(
+                raise InvalidValueError(
                     f"{self.name}: image_size must be (width, height) > 0, got {self.image_size!r}"
                 )
             object.__setattr__(self, "image_size", size)
@@ -148,5 +150,5 @@ def as_views(views):
     except TypeError:
         views = []
     if not views or not all(isinstance(v, BoardView) for v in views):
-        raise TypeError(f"views must be a non-empty sequence of BoardView, got {given}")
+        raise InvalidTypeError(f"views must be a non-empty sequence of BoardView, got {given}")
     return views

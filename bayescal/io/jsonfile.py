@@ -8,7 +8,7 @@ import pathlib
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InvalidValueError
 
 __all__ = ["to_jsonable", "write_json", "read_json"]
 
@@ -24,7 +24,7 @@ def to_jsonable(obj, *, nonfinite="string"):
         or ``None``.
     """
     if nonfinite not in ("string", "null"):
-        raise ValueError(f"nonfinite must be 'string' or 'null', got {nonfinite!r}")
+        raise InvalidValueError(f"nonfinite must be 'string' or 'null', got {nonfinite!r}")
     if isinstance(obj, dict):
         return {str(k): to_jsonable(v, nonfinite=nonfinite) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):

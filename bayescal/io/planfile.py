@@ -24,7 +24,7 @@ import pathlib
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InvalidValueError
 from ..scene.floorplan import FloorPlan
 from .tables import read_table
 
@@ -154,4 +154,4 @@ def plan_from_record(rec):
         return FloorPlan(np.asarray(rec["segments"], float), distance_sd=rec["distance_sd"],
                          angle_sd=rec["angle_sd"])
     except (KeyError, TypeError) as exc:
-        raise ValueError(f"the run's floor-plan record is damaged ({exc})") from None
+        raise InvalidValueError(f"the run's floor-plan record is damaged ({exc})") from None

@@ -16,6 +16,8 @@ import pathlib
 
 import numpy as np
 
+from ..errors import InvalidValueError, OutputExistsError
+
 __all__ = ["write_ply", "write_npz", "cloud_fields", "COVARIANCE_FIELDS"]
 
 #: the covariance entries, in the order of the PLY's properties
@@ -42,25 +44,25 @@ def cloud_fields(points, covariance=None, *, pixels=None, outlier_prob=None):
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points must have shape (M, 3), got {pts.shape}")
+        raise InvalidValueError(f"points must have shape (M, 3), got {pts.shape}")
     m = len(pts)
     out = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2]}
     if covariance is not None:
         cov = np.asarray(covariance, dtype=float)
         if cov.shape != (m, 3, 3):
-            raise ValueError(f"covariance must have shape (M, 3, 3) = {(m, 3, 3)}, "
-                             f"got {cov.shape}")
+            raise InvalidValueError(f"covariance must have shape (M, 3, 3) = {(m, 3, 3)}, "
+                                    f"got {cov.shape}")
         out.update({n: cov[:, i, j] for n, (i, j) in zip(COVARIANCE_FIELDS, _UPPER,
                                                           strict=True)})
     if pixels is not None:
         pix = np.asarray(pixels, dtype=float)
         if pix.shape != (m, 2):
-            raise ValueError(f"pixels must have shape (M, 2) = {(m, 2)}, got {pix.shape}")
+            raise InvalidValueError(f"pixels must have shape (M, 2) = {(m, 2)}, got {pix.shape}")
         out.update(u=pix[:, 0], v=pix[:, 1])
     if outlier_prob is not None:
         op = np.asarray(outlier_prob, dtype=float)
         if op.shape != (m,):
-            raise ValueError(f"outlier_prob must have shape (M,) = {(m,)}, got {op.shape}")
+            raise InvalidValueError(f"outlier_prob must have shape (M,) = {(m,)}, got {op.shape}")
         out["outlier_prob"] = op
     return out
 
@@ -68,7 +70,7 @@ def cloud_fields(points, covariance=None, *, pixels=None, outlier_prob=None):
 def _atomic_write(path, write, overwrite):
     path = pathlib.Path(path)
     if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+        raise OutputExistsError(f"{path} exists; pass overwrite=True to replace it")
     tmp = path.with_name(path.name + ".tmp")
     try:
         with open(tmp, "wb") as f:

@@ -16,6 +16,8 @@ from __future__ import annotations
 import json
 import pathlib
 
+from ..errors import InvalidValueError
+
 __all__ = ["RUN_FILE", "RESULT_FILE", "POSTERIOR_FILE", "RUN_FORMAT", "RUN_VERSION",
            "run_record", "load_run"]
 
@@ -74,21 +76,22 @@ def load_run(run):
     run = pathlib.Path(run)
     rec = run / RUN_FILE
     if not rec.is_file():
-        raise ValueError(f"not a calibration output folder (no {RUN_FILE}); expected the --out "
-                         "folder of 'bayescal calibrate'")
+        raise InvalidValueError(
+            f"not a calibration output folder (no {RUN_FILE}); expected the --out "
+            "folder of 'bayescal calibrate'")
     try:
         info = json.loads(rec.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{rec} is damaged (not valid JSON: {exc})") from None
+        raise InvalidValueError(f"{rec} is damaged (not valid JSON: {exc})") from None
     if not isinstance(info, dict) or info.get("format") != RUN_FORMAT:
-        raise ValueError(f"{rec} is not a bayescal run record")
+        raise InvalidValueError(f"{rec} is not a bayescal run record")
     if info.get("method") == "bayes":
         path = run / POSTERIOR_FILE
         if not path.is_file():
-            raise ValueError(f"{path} is missing (the run used method 'bayes')")
+            raise InvalidValueError(f"{path} is missing (the run used method 'bayes')")
         try:
             return load_posterior(path), info
         except Exception as exc:  # noqa: BLE001 (zip, npz and JSON errors of a damaged file)
-            raise ValueError(f"{path} is not a readable bayescal posterior file "
-                             f"({type(exc).__name__}: {exc})") from None
+            raise InvalidValueError(f"{path} is not a readable bayescal posterior file "
+                                    f"({type(exc).__name__}: {exc})") from None
     return load_result(run / RESULT_FILE), info

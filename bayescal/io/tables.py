@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InvalidValueError
 
 __all__ = ["Table", "read_table", "drop_flagged", "parse_image_size", "LASER_COLUMNS",
            "SIGMA_COLUMNS", "PIXEL_COV_COLUMNS", "FLAG_COLUMNS", "IMAGE_SIZE_KEY",
@@ -314,10 +314,10 @@ def parse_image_size(text):
     try:
         w, h = (int(s) for s in str(text).lower().split("x"))
     except ValueError:
-        raise ValueError(f"image size must look like 800x600 (width x height in px), "
-                         f"got {text!r}") from None
+        raise InvalidValueError(f"image size must look like 800x600 (width x height in px), "
+                                f"got {text!r}") from None
     if w <= 0 or h <= 0:
-        raise ValueError(f"image size must be positive, got {text!r}")
+        raise InvalidValueError(f"image size must be positive, got {text!r}")
     return w, h
 
 

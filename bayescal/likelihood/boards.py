@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
 from ..image.views import as_views
 from ..sensor.board import local_rows, log_det_left_jacobian, project_board
 
@@ -76,7 +77,7 @@ class BoardLikelihood:
         self.points = np.zeros((self.K, M, 3))
         self.degree = int(degree)
         if self.degree < 0:
-            raise ValueError(f"degree must be >= 0, got {degree!r}")
+            raise InvalidValueError(f"degree must be >= 0, got {degree!r}")
         p = (self.degree + 1) * (self.degree + 2)
         self.B = np.zeros((self.K, 2 * M, p))
         for k, v in enumerate(views):

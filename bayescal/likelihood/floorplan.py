@@ -1,9 +1,8 @@
 """The floor-plan likelihood: laser pixels of points on uncertain walls.
 
-Unknowns: the identifiable parameters ``theta`` (7), the wall parameters
-``(d_k, a_k)`` of a :class:`~bayescal.scene.floorplan.FloorPlan` (``2W``) and, per
-laser point, its azimuth ``t_i`` (one coordinate: the point lies on its wall
-*and* on the cone)::
+Unknowns: the identifiable parameters ``theta`` (7), the wall parameters ``(d_k, a_k)`` of a
+:class:`~bayescal.scene.floorplan.FloorPlan` (``2W``) and, per laser point, its azimuth
+``t_i`` (one coordinate: the point lies on its wall *and* on the cone)::
 
     P_i = (rho cos t_i, rho sin t_i, rho / tan(beta) - h),  rho = d_k / cos(t_i - a_k)
     pixels_i ~ N(project(theta, P_i), sigma_px^2 I_2)   (or sigma_px^2 pixel_cov_i)
@@ -37,9 +36,9 @@ or an outlier whose pixel rows have ``c`` times the noise, ``log[(1 - w) L_in + 
 the outlier reuses each piece's ``rr*``, ``H / C`` and ``C``, untruncated and weighted by
 the inlier's piece shares (the formula and why: ``docs/robustness.md``, "Floor plans").
 
-The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0,
-..., d_{W-1}, a_{W-1}[, log sigma_px][, logit w])`` and ``q`` of shape ``(..., N, 1)``;
-with a misaligned cone, the pose after theta (:mod:`bayescal.likelihood.plan_misaligned`).
+The class follows the collapsed sampler's protocol: ``psi = (theta, d_0, a_0, ..., d_{W-1},
+a_{W-1}[, log sigma_px][, logit w])``, ``q`` of shape ``(..., N, 1)``; with a misaligned cone,
+the pose after theta (:mod:`bayescal.likelihood.plan_misaligned`).
 """
 
 from __future__ import annotations
@@ -48,6 +47,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from .._validation import as_pixels, check_positive
+from ..errors import InvalidTypeError, InvalidValueError
 from ..scene.floorplan import FloorPlan, corner_azimuths, plan_point, wrap_angle
 from ..sensor.camera import project_theta
 from ..sensor.laser import pixel_azimuth
@@ -118,10 +118,10 @@ class PlanLikelihood:
     def __init__(self, pixels, plan, *, sigma_px, azimuth_params=None, outliers=False,
                  outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR, pixel_cov=None):
         if not isinstance(plan, FloorPlan):
-            raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
+            raise InvalidTypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
         self.pixels = as_pixels(pixels, "pixels")
         if self.pixels.ndim != 2:
-            raise ValueError(f"pixels must have shape (N, 2), got {self.pixels.shape}")
+            raise InvalidValueError(f"pixels must have shape (N, 2), got {self.pixels.shape}")
         self.plan = plan
         self.n = len(self.pixels)
         self.n_walls = plan.n_walls
@@ -202,7 +202,7 @@ class PlanLikelihood:
     def logit_frac(self, psi):
         """``logit w`` (...) of ``psi`` (the last coordinate); needs ``outliers=True``."""
         if not self.outliers:
-            raise ValueError("the outlier fraction needs a likelihood built with outliers=True")
+            raise InvalidValueError("the outlier fraction needs a likelihood with outliers=True")
         return np.asarray(psi, dtype=float)[..., -1]
 
     def log_prior_extra(self, extra):
@@ -357,7 +357,7 @@ class PlanLikelihood:
         Requires ``outliers=True``.
         """
         if not self.outliers:
-            raise ValueError("outlier_prob needs a likelihood built with outliers=True")
+            raise InvalidValueError("outlier_prob needs a likelihood built with outliers=True")
         return self._mixture(psi, n_iter)[-1]
 
     def _mixture(self, psi, n_iter, pieces=None):

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.special import betaln, log_expit
 
 from .._validation import check_positive
+from ..errors import InvalidTypeError, InvalidValueError
 
 __all__ = ["OUTLIER_SCALE", "OUTLIER_PRIOR", "NOISE_TRIM", "check_outlier_options",
            "log_prior_logit_frac",
@@ -37,19 +38,19 @@ OUTLIER_PRIOR = (1.0, 19.0)
 def check_outlier_options(outliers, scale, prior):
     """Validate the outlier switch, scale and prior; returns ``(bool, float, (a, b))``."""
     if not isinstance(outliers, (bool, np.bool_)):
-        raise TypeError(f"outliers must be True or False, got {outliers!r}")
+        raise InvalidTypeError(f"outliers must be True or False, got {outliers!r}")
     c = check_positive(scale, "outlier_scale")
     if c <= 1.0:
-        raise ValueError(f"outlier_scale must be > 1 (the outlier component is broader than "
-                         f"the model's noise), got {scale!r}")
+        raise InvalidValueError(f"outlier_scale must be > 1 (the outlier component is broader than "
+                                f"the model's noise), got {scale!r}")
     try:
         a, b = (float(v) for v in prior)
     except (TypeError, ValueError):
-        raise TypeError(f"outlier_prior must be a pair (a, b) of Beta parameters, got "
-                        f"{prior!r}") from None
+        raise InvalidTypeError(f"outlier_prior must be a pair (a, b) of Beta parameters, got "
+                               f"{prior!r}") from None
     if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
-        raise ValueError(f"outlier_prior must be a pair (a, b) of positive finite Beta "
-                         f"parameters, got {prior!r}")
+        raise InvalidValueError(f"outlier_prior must be a pair (a, b) of positive finite Beta "
+                                f"parameters, got {prior!r}")
     return bool(outliers), c, (a, b)
 
 

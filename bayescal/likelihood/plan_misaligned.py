@@ -19,6 +19,7 @@ returns the 11 numbers ``(theta, pose)`` as the geometry.
 
 from __future__ import annotations
 
+from ..errors import InvalidValueError
 from ..sensor.laser import cone_height
 from .floorplan import PlanLikelihood
 from .misaligned import PoseGlobals
@@ -76,5 +77,5 @@ def plan_likelihood(model, pixels, plan, prior, **kw):
     if model == "misaligned":
         return MisalignedPlanLikelihood(pixels, plan, prior=prior, **kw)
     if model != "aligned":
-        raise ValueError(f"model must be 'aligned' or 'misaligned', got {model!r}")
+        raise InvalidValueError(f"model must be 'aligned' or 'misaligned', got {model!r}")
     return PlanLikelihood(pixels, plan, **kw)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, log_expit
 
+from ..errors import InvalidValueError
 from ..sensor.laser import cone_height
 
 _LOG2PI = np.log(2 * np.pi)
@@ -44,16 +45,16 @@ def pixel_whitening(pixel_cov, n):
         return None, 0.0
     cov = np.asarray(pixel_cov, dtype=float)
     if cov.shape != (n, 2, 2):
-        raise ValueError(f"pixel_cov must have shape (N, 2, 2) = {(n, 2, 2)} px^2, got "
-                         f"{cov.shape}")
+        raise InvalidValueError(f"pixel_cov must have shape (N, 2, 2) = {(n, 2, 2)} px^2, got "
+                                f"{cov.shape}")
     bad = ~np.all(np.isfinite(cov), axis=(1, 2)) | (np.abs(cov[:, 0, 1] - cov[:, 1, 0])
                                                    > 1e-9 * np.abs(cov).max(axis=(1, 2)))
     det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
     bad |= ~(cov[:, 0, 0] > 0) | ~(det > 0)
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"pixel_cov must be symmetric positive definite; row {i} is "
-                         f"{cov[i].tolist()}")
+        raise InvalidValueError(f"pixel_cov must be symmetric positive definite; row {i} is "
+                                f"{cov[i].tolist()}")
     prec = np.linalg.inv(cov)
     a = np.sqrt(prec[:, 0, 0])
     b = prec[:, 0, 1] / a

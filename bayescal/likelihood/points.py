@@ -12,9 +12,8 @@ Each point contributes five whitened residuals (two pixel, three scene rows), wi
 analytic Jacobians, vectorized over leading axes (walkers) and the N points; the
 least squares and both samplers call it (a misaligned cone: ``misaligned.py``).
 
-Noise levels are given or inferred: ``sigma_px = None`` adds ``log sigma_px``
-to the sampled vector, ``sigma_scene = None`` adds ``log kappa`` with
-``sigma_scene_i = kappa * rho_i`` (``rho_i`` the approximate point's range).
+Noise levels are given or inferred: ``sigma_px = None`` adds ``log sigma_px`` to the sampled
+vector, ``sigma_scene = None`` adds ``log kappa`` with ``sigma_scene_i = kappa * rho_i``.
 """
 
 from __future__ import annotations
@@ -22,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_pixels, as_points, check_positive
+from ..errors import InvalidTypeError, InvalidValueError
 from ..sensor.camera import project_theta
 from ..sensor.laser import cone_points_geo, triangulate_geo
 from .outliers import OUTLIER_PRIOR, OUTLIER_SCALE, check_outlier_options, log_prior_logit_frac, mix
@@ -97,18 +97,18 @@ class LaserLikelihood:
                  outliers=False, outlier_scale=OUTLIER_SCALE, outlier_prior=OUTLIER_PRIOR,
                  pixel_cov=None):
         if point_prior not in POINT_PRIORS:
-            raise ValueError(f"point_prior must be one of {POINT_PRIORS}, got {point_prior!r}")
+            raise InvalidValueError(f"point_prior must be in {POINT_PRIORS}, got {point_prior!r}")
         self.point_prior = point_prior
         self.outliers, self.outlier_scale, self.outlier_prior = check_outlier_options(
             outliers, outlier_scale, outlier_prior)
         self.pixels = as_pixels(pixels, "pixels")
         self.approx = as_points(approx_points, "approx_points")
         if self.pixels.ndim != 2 or self.approx.ndim != 2:
-            raise ValueError(f"pixels must have shape (N, 2) and approx_points (N, 3), got "
-                             f"{self.pixels.shape} and {self.approx.shape}")
+            raise InvalidValueError(f"pixels must have shape (N, 2) and approx_points (N, 3), got "
+                                    f"{self.pixels.shape} and {self.approx.shape}")
         if len(self.pixels) != len(self.approx):
-            raise ValueError(f"pixels and approx_points must have the same length N, got "
-                             f"{len(self.pixels)} and {len(self.approx)}")
+            raise InvalidValueError(f"pixels and approx_points must have the same length N, got "
+                                    f"{len(self.pixels)} and {len(self.approx)}")
         self.n = len(self.pixels)
         self.infer_px = sigma_px is None
         self.infer_scene = sigma_scene is None
@@ -122,16 +122,16 @@ class LaserLikelihood:
             try:
                 s = np.asarray(sigma_scene, dtype=float)
             except (TypeError, ValueError):
-                raise TypeError(f"sigma_scene must be a float, an array or None, got "
-                                f"{type(sigma_scene).__name__}") from None
+                raise InvalidTypeError(f"sigma_scene must be a float, an array or None, got "
+                                       f"{type(sigma_scene).__name__}") from None
             if np.any(np.isnan(s)) or np.any(s <= 0):
-                raise ValueError("sigma_scene must be positive everywhere (inf allowed: no "
-                                 f"information on that axis), got min {np.min(s)}")
+                raise InvalidValueError("sigma_scene must be positive everywhere (inf allowed: no "
+                                        f"information on that axis), got min {np.min(s)}")
             try:
                 s = np.broadcast_to(s, (self.n, 3))
             except ValueError:
-                raise ValueError(f"sigma_scene must be a float or broadcastable to (N, 3) = "
-                                 f"{(self.n, 3)}, got shape {np.shape(sigma_scene)}") from None
+                raise InvalidValueError(f"sigma_scene must be a float or broadcastable to (N, 3)"
+                                        f", got shape {np.shape(sigma_scene)}") from None
             self.w_scene = np.where(np.isfinite(s), 1.0 / s, 0.0)
             self._scene_mask = np.isfinite(s)
         self.n_noise = int(self.infer_px) + int(self.infer_scene)
@@ -373,7 +373,7 @@ class LaserLikelihood:
         ``w L_out / ((1 - w) L_in + w L_out)`` with the points integrated out (the Laplace
         step of :meth:`laplace`); NaN outside the model's domain. Needs ``outliers=True``."""
         if not self.outliers:
-            raise ValueError("outlier_prob needs a likelihood built with outliers=True")
+            raise InvalidValueError("outlier_prob needs a likelihood built with outliers=True")
         return self._laplace_points(psi, q0, n_iter)[-1]
 
     def min_residual(self, psi, q0, *, n_iter=4):

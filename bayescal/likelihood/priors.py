@@ -34,6 +34,7 @@ import numpy as np
 from scipy import stats
 
 from .._validation import resolve_rng
+from ..errors import FitError, InvalidTypeError, InvalidValueError
 from ..sensor.parameters import (
     CAMERA_PARAM_NAMES,
     PARAM_NAMES,
@@ -172,12 +173,14 @@ def _camera_marginals(mean, cov, phi):
 
 def _check_dist(name, dist):
     if isinstance(dist, (stats.rv_continuous, stats.rv_discrete)):
-        raise TypeError(f"prior[{name!r}] must be a frozen scipy.stats distribution, got the "
-                        f"unfrozen {dist.name!r}: give its parameters, e.g. "
-                        f"scipy.stats.{dist.name}(loc=..., scale=...)")
+        raise InvalidTypeError(
+            f"prior[{name!r}] must be a frozen scipy.stats distribution, got the "
+            f"unfrozen {dist.name!r}: give its parameters, e.g. "
+            f"scipy.stats.{dist.name}(loc=..., scale=...)")
     if not (hasattr(dist, "logpdf") and hasattr(dist, "ppf") and hasattr(dist, "rvs")):
-        raise TypeError(f"prior[{name!r}] must be a scipy.stats frozen continuous distribution "
-                        f"(with logpdf, ppf, rvs), got {type(dist).__name__}")
+        raise InvalidTypeError(
+            f"prior[{name!r}] must be a scipy.stats frozen continuous distribution "
+            f"(with logpdf, ppf, rvs), got {type(dist).__name__}")
     return dist
 
 
@@ -234,17 +237,19 @@ class Prior:
         if camera is not None:
             clash = sorted(set(prior or {}) & set(CAMERA_PARAM_NAMES))
             if clash:
-                raise ValueError(f"prior gives {', '.join(clash)} and camera is given: the "
-                                 "camera's prior replaces those of xi, alpha_u, alpha_v, u0, "
-                                 "v0; leave them out of prior")
+                raise InvalidValueError(
+                    f"prior gives {', '.join(clash)} and camera is given: the "
+                    "camera's prior replaces those of xi, alpha_u, alpha_v, u0, "
+                    "v0; leave them out of prior")
         if prior is not None:
             if not isinstance(prior, dict):
-                raise TypeError(f"prior must be a dict {{name: scipy.stats frozen distribution}}, "
-                                f"got {type(prior).__name__}")
+                raise InvalidTypeError(
+                    f"prior must be a dict {{name: scipy.stats frozen distribution}}, "
+                    f"got {type(prior).__name__}")
             unknown = set(prior) - set(PARAM_NAMES) - set(POSE_NAMES)
             if unknown:
-                raise ValueError(f"prior has unknown parameter name(s) {sorted(unknown)}; "
-                                 f"expected any of {PARAM_NAMES + POSE_NAMES}")
+                raise InvalidValueError(f"prior has unknown parameter name(s) {sorted(unknown)}; "
+                                        f"expected any of {PARAM_NAMES + POSE_NAMES}")
             for k, v in prior.items():
                 (pose if k in POSE_NAMES else dists)[k] = _check_dist(k, v)
         self.camera = None
@@ -332,7 +337,7 @@ class Prior:
             if todo.size == 0:
                 break
         else:
-            raise RuntimeError("prior puts almost no mass on physical parameters")
+            raise FitError("prior puts almost no mass on physical parameters")
         return out.reshape(shape + (8,))
 
     # -- identifiable coordinates ------------------------------------------

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
+
 __all__ = ["scene_range", "RHO_FLOOR"]
 
 #: an approximate point's range in ``kappa * rho`` is at least this fraction of the median
@@ -20,6 +22,6 @@ def scene_range(approx_points):
     """
     rho = np.hypot(approx_points[..., 0], approx_points[..., 1])
     if np.any(rho <= 0):
-        raise ValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
-                         "scene error; give sigma_scene explicitly")
+        raise InvalidValueError("approx_points on the axis (x = y = 0) cannot carry a relative "
+                                "scene error; give sigma_scene explicitly")
     return np.maximum(rho, RHO_FLOOR * np.median(rho))

@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import resolve_rng
+from ..errors import InvalidValueError
 from ..fit.camera import (
     _noise_values,
     _schur,
@@ -205,8 +206,9 @@ def _start(views, noise, lsq, fit_options):
     """The least-squares fit, the target (the model the fit weighted by) and the proposal."""
     if lsq is not None and (list(lsq.view_names) != [v.name for v in views]
                             or lsq.noise != noise):
-        raise ValueError(f"lsq must be calibrate_camera's result on these views with "
-                         f"noise={noise!r}; got one on {lsq.view_names} with noise={lsq.noise!r}")
+        raise InvalidValueError(
+            f"lsq must be calibrate_camera's result on these views with "
+            f"noise={noise!r}; got one on {lsq.view_names} with noise={lsq.noise!r}")
     cam = lsq if lsq is not None else calibrate_camera(views, noise=noise, **fit_options)
     lik = BoardLikelihood(views, degree=cam.info.get("degree", 2))
     model = "per-view" if _adjusted(cam) else cam.noise

@@ -18,7 +18,13 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
-from ..errors import NoiseAtBoundWarning, NotConvergedError, NotConvergedWarning
+from ..errors import (
+    FitError,
+    InvalidValueError,
+    NoiseAtBoundWarning,
+    NotConvergedError,
+    NotConvergedWarning,
+)
 from ..likelihood.point_algebra import outlier_probs
 from ..likelihood.point_draws import DRAW_ELEMENTS
 from ..likelihood.points import draw_points
@@ -128,7 +134,7 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves, n_rounds):
         p0[bad] = rng.multivariate_normal(s_map, cov_s * 0.01, size=int(bad.sum()))
         lp0[bad] = target(p0[bad])
     else:
-        raise RuntimeError("could not place the walkers: the MAP start is outside the support")
+        raise FitError("could not place the walkers: the MAP start is outside the support")
     if n_tune <= 0:
         return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3,
                 "imh_acceptance": [], "use_hmc": target.has_gradient}
@@ -155,7 +161,7 @@ def _thin(chain, burn, n_samples):
 def _count(value, name, minimum):
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
             or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise InvalidValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
 def check_run_options(*, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=20000,
@@ -177,16 +183,17 @@ def check_run_options(*, n_walkers=None, min_ess=1000, tau_factor=50, max_steps=
     for name, v in (("min_ess", min_ess), ("tau_factor", tau_factor)):
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
                 or not np.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite positive number, got {v!r}")
+            raise InvalidValueError(f"{name} must be a finite positive number, got {v!r}")
     if on_unconverged not in ("warn", "raise"):
-        raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
+        raise InvalidValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
 
 
 def check_walkers(n_walkers, ndim):
     """Raise ``ValueError`` unless ``n_walkers`` is None or at least ``ndim + 2``."""
     if n_walkers is not None and int(n_walkers) < min_walkers(ndim):
-        raise ValueError(f"n_walkers must be at least ndim + 2 = {min_walkers(ndim)} (the "
-                         f"walkers must span the {ndim} sampled coordinates), got {n_walkers}")
+        raise InvalidValueError(
+            f"n_walkers must be at least ndim + 2 = {min_walkers(ndim)} (the "
+            f"walkers must span the {ndim} sampled coordinates), got {n_walkers}")
 
 
 def report_unconverged(diag, posterior, *, what, max_steps, on_unconverged, stacklevel):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, logit
 
+from ..errors import InvalidValueError
 from ..sensor.laser import cone_height
 
 __all__ = ["ring_scale", "depth_scale", "pose_shift", "pose_scale", "Coordinates", "log_jacobian",
@@ -183,9 +184,11 @@ class Coordinates:
     def __init__(self, rho_ref=np.inf, frac_index=None, pose=False, ring=True):
         rho_ref = float(np.inf if rho_ref is None else rho_ref)
         if not rho_ref > 0:
-            raise ValueError(f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
+            raise InvalidValueError(
+                f"rho_ref must be a positive range in mm or inf, got {rho_ref!r}")
         if pose and np.isinf(rho_ref):
-            raise ValueError("the pose's coordinates need a finite rho_ref (the points' range)")
+            raise InvalidValueError(
+                "the pose's coordinates need a finite rho_ref (the points' range)")
         self.rho_ref = rho_ref
         self.frac_index = None if frac_index is None else int(frac_index)
         self.pose = bool(pose)

@@ -24,6 +24,7 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
+from ..errors import InvalidTypeError, InvalidValueError
 from ..fit.plan_start import plan_map_start
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
 from ..likelihood.priors import as_prior
@@ -94,14 +95,14 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         replaces them) and ``plan`` the given plan.
     """
     if not isinstance(plan, FloorPlan):
-        raise TypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
+        raise InvalidTypeError(f"plan must be a FloorPlan, got {type(plan).__name__}")
     if sigma_scene is not SCENE_REQUIRED:
-        raise TypeError("with a FloorPlan, sigma_scene does not apply (the plan carries its "
-                        "own sds); leave it out")
+        raise InvalidTypeError("with a FloorPlan, sigma_scene does not apply (the plan carries its "
+                               "own sds); leave it out")
     if on_unconverged not in ("warn", "raise"):
-        raise ValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
+        raise InvalidValueError(f"on_unconverged must be 'warn' or 'raise', got {on_unconverged!r}")
     if int(n_samples) < 1:
-        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+        raise InvalidValueError(f"n_samples must be a positive integer, got {n_samples!r}")
     ndim = 7 + 4 * (model == "misaligned") + 2 * plan.n_walls + (sigma_px is None) \
         + bool(outliers)
     check_walkers(n_walkers, ndim)

@@ -26,6 +26,8 @@ from emcee.moves import MHMove, Move
 from emcee.state import State
 from scipy.special import gammaln
 
+from ..errors import InvalidValueError
+
 __all__ = ["IndependenceMove", "HMCMove"]
 
 
@@ -48,13 +50,13 @@ class IndependenceMove(MHMove):
         cov = np.asarray(cov, dtype=float)
         ndim = len(mean)
         if cov.shape != (ndim, ndim):
-            raise ValueError(f"cov must have shape {(ndim, ndim)}, got {cov.shape}")
+            raise InvalidValueError(f"cov must have shape {(ndim, ndim)}, got {cov.shape}")
         if not df > 0:
-            raise ValueError(f"df must be positive, got {df!r}")
+            raise InvalidValueError(f"df must be positive, got {df!r}")
         try:
             self._L = np.linalg.cholesky(cov) * float(scale)
         except np.linalg.LinAlgError:
-            raise ValueError("cov must be symmetric positive definite") from None
+            raise InvalidValueError("cov must be symmetric positive definite") from None
         self._Linv = np.linalg.inv(self._L)
         self.mean, self.df, self.ndim_ = mean, float(df), ndim
         self.n_proposed, self.n_accepted = 0, 0
@@ -129,17 +131,17 @@ class HMCMove(Move):
                  adapt=False, target_accept=0.75):
         cov = np.asarray(cov, dtype=float)
         if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
-            raise ValueError(f"cov must be a square matrix, got shape {cov.shape}")
+            raise InvalidValueError(f"cov must be a square matrix, got shape {cov.shape}")
         try:
             self._L = np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:
-            raise ValueError("cov must be symmetric positive definite") from None
+            raise InvalidValueError("cov must be symmetric positive definite") from None
         if not step_size > 0:
-            raise ValueError(f"step_size must be positive, got {step_size!r}")
+            raise InvalidValueError(f"step_size must be positive, got {step_size!r}")
         if int(n_steps) < 1:
-            raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
+            raise InvalidValueError(f"n_steps must be a positive integer, got {n_steps!r}")
         if not 0 <= jitter < 1:
-            raise ValueError(f"jitter must be in [0, 1), got {jitter!r}")
+            raise InvalidValueError(f"jitter must be in [0, 1), got {jitter!r}")
         self.value_and_grad = value_and_grad
         self.step_size, self.n_steps, self.jitter = float(step_size), int(n_steps), float(jitter)
         self.adapt, self.target_accept = bool(adapt), float(target_accept)

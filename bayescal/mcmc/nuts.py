@@ -43,6 +43,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
+
 __all__ = ["sample_nuts", "nuts_available"]
 
 _ORDER = ("xi", "phi", "alpha_u", "alpha_v", "u0", "v0", "h", "beta")
@@ -67,8 +69,9 @@ def _normal_prior(prior, misaligned=False):
     for name in _ORDER + (_POSE if misaligned else ()):
         d = dists[name]
         if getattr(getattr(d, "dist", None), "name", None) != "norm":
-            raise ValueError(f"the NUTS reference supports normal priors only; prior[{name!r}] "
-                             f"is {getattr(d.dist, 'name', type(d).__name__)}")
+            raise InvalidValueError(
+                f"the NUTS reference supports normal priors only; prior[{name!r}] "
+                f"is {getattr(d.dist, 'name', type(d).__name__)}")
         loc.append(float(d.mean()))
         scale.append(float(d.std()))
     return np.array(loc), np.array(scale)

@@ -33,6 +33,7 @@ import warnings
 import numpy as np
 
 from .._validation import check_positive, resolve_rng
+from ..errors import InvalidTypeError, InvalidValueError
 from ..fit.simultaneous import check_model, point_likelihood
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
 from ..likelihood.priors import Prior, as_prior
@@ -217,15 +218,15 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     rng = resolve_rng(rng)
     if budget is not None and not (isinstance(budget, (int, float, np.number))
                                    and not isinstance(budget, bool) and budget >= 1):
-        raise ValueError(f"budget must be None or a number >= 1 (times the projected "
-                         f"steps), got {budget!r}")
+        raise InvalidValueError(f"budget must be None or a number >= 1 (times the projected "
+                                f"steps), got {budget!r}")
     if isinstance(approx_points, FloorPlan):          # walls in place of points
         kw = {k: v for k, v in locals().items()
               if k not in ("pixels", "approx_points", "camera", "offset_sd")}
         return _with_offset(sample_plan_posterior(pixels, approx_points, **kw), offset_sd, rng)
     if sigma_scene is SCENE_REQUIRED:
-        raise TypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
-                        "(needed with approximate points)")
+        raise InvalidTypeError("sample_posterior() missing required keyword argument 'sigma_scene' "
+                               "(needed with approximate points)")
     from ..fit.simultaneous import calibrate_simultaneous
 
     lik = point_likelihood(model, pixels, approx_points, prior, sigma_px=sigma_px,
@@ -351,7 +352,7 @@ def sample_joint(pixels, approx_points, *, sigma_px, sigma_scene, prior=None, rn
     prior = prior if isinstance(prior, Prior) else Prior(prior)
     lik = LaserLikelihood(pixels, approx_points, sigma_px=sigma_px, sigma_scene=sigma_scene)
     if lik.n_noise:
-        raise ValueError("sample_joint needs sigma_px and sigma_scene given")
+        raise InvalidValueError("sample_joint needs sigma_px and sigma_scene given")
     n = lik.n
     ndim = 7 + 2 * n
     n_walkers = 2 * ndim + 2 if n_walkers is None else int(n_walkers)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_pixels, as_points
+from ..errors import InvalidValueError
 
 __all__ = ["plot_image", "plot_room", "plot_residuals", "plot_reconstruction", "savefig"]
 
@@ -85,7 +86,7 @@ def plot_room(points, *, walls=None, approx_points=None, view="top", ax=None):
     """
     points = as_points(points, allow_nan=True)
     if view not in ("top", "3d"):
-        raise ValueError(f"view must be 'top' or '3d', got {view!r}")
+        raise InvalidValueError(f"view must be 'top' or '3d', got {view!r}")
     fig, ax = _axes(ax, projection="3d" if view == "3d" else None)
     if view == "top":
         if walls is not None:
@@ -150,8 +151,9 @@ def plot_residuals(pixels, predicted, *, scale=200.0, ax=None):
     pixels = as_pixels(pixels)
     predicted = as_pixels(predicted, "predicted", allow_nan=True)
     if pixels.shape != predicted.shape:
-        raise ValueError(f"pixels and predicted must have the same shape, got {pixels.shape} "
-                         f"and {predicted.shape}")
+        raise InvalidValueError(
+            f"pixels and predicted must have the same shape, got {pixels.shape} "
+            f"and {predicted.shape}")
     fig, ax = _axes(ax)
     d = pixels - predicted
     ax.quiver(predicted[:, 0], predicted[:, 1], d[:, 0] * scale, d[:, 1] * scale,
@@ -195,8 +197,8 @@ def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0
     mean = as_points(mean, "mean", allow_nan=True)
     covariance = np.asarray(covariance, dtype=float)
     if covariance.shape != mean.shape + (3,):
-        raise ValueError(f"covariance must have shape {mean.shape + (3,)}, got "
-                         f"{covariance.shape}")
+        raise InvalidValueError(f"covariance must have shape {mean.shape + (3,)}, got "
+                                f"{covariance.shape}")
     fig, ax = _axes(ax)
     if walls is not None:
         for seg in np.asarray(walls):

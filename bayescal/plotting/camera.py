@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InvalidValueError
 from .basic import _axes
 
 __all__ = ["plot_view_residuals", "plot_image_residuals"]
@@ -58,8 +59,8 @@ def plot_image_residuals(result, views, *, scale=100.0, ax=None):
     """
     views = list(views)
     if len(views) != len(result.residuals):
-        raise ValueError(f"views must be the {len(result.residuals)} views of the result, "
-                         f"got {len(views)}")
+        raise InvalidValueError(f"views must be the {len(result.residuals)} views of the result, "
+                                f"got {len(views)}")
     fig, ax = _axes(ax, figsize=(7, 5.6))
     for v, r in zip(views, result.residuals, strict=True):
         ax.quiver(v.pixels[:, 0], v.pixels[:, 1], scale * r[:, 0], scale * r[:, 1],

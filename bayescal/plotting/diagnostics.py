@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..constants import CHI2_2_95
+from ..errors import InvalidValueError
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES
 from ..sensor.pose import POSE_NAMES
 
@@ -88,7 +89,7 @@ def plot_corner(posterior, *, identifiable=False, truth=None, params=None, prior
     if params is not None:
         unknown = [p for p in params if p not in names]
         if unknown:
-            raise ValueError(f"params {unknown} not among {names}")
+            raise InvalidValueError(f"params {unknown} not among {names}")
         idx = [names.index(p) for p in params]
     names, x = [names[i] for i in idx], x[:, idx]
     truths = None if truths is None else [truths[i] for i in idx]

@@ -14,6 +14,8 @@ import html
 import pathlib
 from dataclasses import dataclass, field
 
+from ..errors import InvalidValueError
+
 __all__ = ["Document", "render", "write_document"]
 
 
@@ -140,7 +142,7 @@ def render(doc, kind):
     """Render ``doc`` as ``"markdown"`` or ``"html"`` (figures embedded); returns str."""
     writers = {"markdown": _Markdown, "html": _Html}
     if kind not in writers:
-        raise ValueError(f"kind must be 'markdown' or 'html', got {kind!r}")
+        raise InvalidValueError(f"kind must be 'markdown' or 'html', got {kind!r}")
     w = writers[kind]()
     lines = w.start(doc.title)
     for block in doc.blocks:

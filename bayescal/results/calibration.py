@@ -42,6 +42,7 @@ import pathlib
 import numpy as np
 
 from ..constants import Z90
+from ..errors import BayescalError, InvalidValueError, MissingFileError, OutputExistsError
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
 from ..sensor.pose import POSE_NAMES, LaserPose, as_pose_array
 from ..stats.identifiability import (
@@ -78,7 +79,7 @@ _SAVED_EXTRAS = ("point_covariance", "sigma_px", "sigma_scene", "pixels", "appro
                  "stage2_residuals_std", "sigma_px_used")
 
 
-class ConvergenceError(RuntimeError):
+class ConvergenceError(BayescalError, RuntimeError):
     """A calibration did not converge; ``.result`` holds the flagged result.
 
     Attributes
@@ -204,7 +205,7 @@ class CalibrationResult:
         if cov is not None:
             return np.asarray(cov, float)
         if self.points is None:
-            raise ValueError(f"this {self.method} result has no laser points")
+            raise InvalidValueError(f"this {self.method} result has no laser points")
         from ..sensor.camera import project
 
         return linear_reconstruction(self.params, self.covariance_identifiable,
@@ -247,7 +248,7 @@ class CalibrationResult:
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         if not (np.isfinite(sigma_px) and sigma_px >= 0):
-            raise ValueError(f"sigma_px must be a finite number >= 0 px, got {sigma_px!r}")
+            raise InvalidValueError(f"sigma_px must be a finite number >= 0 px, got {sigma_px!r}")
         rec = linear_reconstruction(self.params, self.covariance_identifiable, pixels,
                                     float(sigma_px), laser=self._laser)
         rec.pixels = pixels
@@ -413,7 +414,7 @@ class CalibrationResult:
         """
         path = pathlib.Path(path)
         if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+            raise OutputExistsError(f"{path} exists; pass overwrite=True to replace it")
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")
         os.replace(tmp, path)
@@ -472,20 +473,21 @@ def load_result(path):
     """
     path = pathlib.Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no result file at {path}")
+        raise MissingFileError(f"no result file at {path}")
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path} is not a bayescal result file (not valid JSON: {exc})") \
+        raise InvalidValueError(f"{path} is not a bayescal result file (not valid JSON: {exc})") \
             from None
     if not isinstance(d, dict) or d.get("format") != RESULT_FORMAT:
-        raise ValueError(f"{path} is not a bayescal result file (no \"format\": "
-                         f"\"{RESULT_FORMAT}\")")
+        raise InvalidValueError(f"{path} is not a bayescal result file (no \"format\": "
+                                f"\"{RESULT_FORMAT}\")")
     if not isinstance(d.get("version"), int) or d["version"] > RESULT_VERSION:
-        raise ValueError(f"{path} has format version {d.get('version')!r}; this bayescal reads "
-                         f"up to {RESULT_VERSION}")
+        raise InvalidValueError(
+            f"{path} has format version {d.get('version')!r}; this bayescal reads "
+            f"up to {RESULT_VERSION}")
     try:
         return CalibrationResult.from_dict(d)
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path} is a damaged bayescal result file ({type(exc).__name__}: "
-                         f"{exc})") from None
+        raise InvalidValueError(f"{path} is a damaged bayescal result file ({type(exc).__name__}: "
+                                f"{exc})") from None

@@ -29,6 +29,7 @@ import pathlib
 import numpy as np
 from scipy import stats
 
+from ..errors import InvalidValueError, OutputExistsError
 from ..sensor.board import CAMERA_NAMES
 from ..sensor.camera import backproject_theta, project_theta
 from ..stats.chains import ChainDiagnostics
@@ -222,8 +223,8 @@ class CameraResult:
     def from_dict(cls, d):
         """A result from :meth:`to_dict`'s output."""
         if d.get("format") != CAMERA_FORMAT:
-            raise ValueError(f"not a camera result (format {d.get('format')!r}, expected "
-                             f"{CAMERA_FORMAT!r})")
+            raise InvalidValueError(f"not a camera result (format {d.get('format')!r}, expected "
+                                    f"{CAMERA_FORMAT!r})")
         diag = d.get("diagnostics")
         return cls([d["intrinsics"][n] for n in CAMERA_NAMES], d["cov"], d["poses"],
                    d["residuals"], d["view_names"], noise=d["noise"], sigma=d["sigma"],
@@ -237,7 +238,7 @@ class CameraResult:
         refuses to overwrite unless asked."""
         path = pathlib.Path(path)
         if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+            raise OutputExistsError(f"{path} exists; pass overwrite=True to replace it")
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(self.to_dict()), encoding="utf-8")
         os.replace(tmp, path)
@@ -260,8 +261,8 @@ def load_camera(path):
     try:
         d = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read a camera result ({exc})") from None
+        raise InvalidValueError(f"{path}: cannot read a camera result ({exc})") from None
     try:
         return CameraResult.from_dict(d)
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: not a valid camera result ({exc})") from None
+        raise InvalidValueError(f"{path}: not a valid camera result ({exc})") from None

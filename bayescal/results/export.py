@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import inspect
 
+from ..errors import MissingDependencyError
 from ..sensor.parameters import PARAM_NAMES
 from ..sensor.pose import POSE_NAMES
 
@@ -57,7 +58,8 @@ def to_inference_data(posterior, *, module=None):
         try:
             import arviz as module
         except ImportError:
-            raise ImportError("to_inference_data needs arviz (pip install 'bayescal[arviz]')") \
+            raise MissingDependencyError(
+                "to_inference_data needs arviz (pip install 'bayescal[arviz]')") \
                 from None
     post = posterior_dict(posterior)
     kw = {"dims": {"points": ["point", "axis"]}, "coords": {"axis": ["x", "y", "z"]}}

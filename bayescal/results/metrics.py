@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_points
+from ..errors import InvalidValueError
 
 __all__ = ["reconstruction_errors", "reconstruction_error"]
 
@@ -52,8 +53,8 @@ def reconstruction_errors(reconstructed, true):
     try:
         diff = rec - tru
     except ValueError:
-        raise ValueError(f"reconstructed and true must have broadcastable shapes, got "
-                         f"{rec.shape} and {tru.shape}") from None
+        raise InvalidValueError(f"reconstructed and true must have broadcastable shapes, got "
+                                f"{rec.shape} and {tru.shape}") from None
     return np.linalg.norm(diff, axis=-1)
 
 
@@ -82,17 +83,17 @@ def reconstruction_error(reconstructed, true, *, invalid="raise"):
     3.0
     """
     if invalid not in _INVALID:
-        raise ValueError(f"invalid must be one of {_INVALID}, got {invalid!r}")
+        raise InvalidValueError(f"invalid must be one of {_INVALID}, got {invalid!r}")
     d = reconstruction_errors(reconstructed, true)
     if d.size == 0:
-        raise ValueError("reconstructed and true hold no points")
+        raise InvalidValueError("reconstructed and true hold no points")
     bad = np.isnan(d)
     if bad.any():
         if invalid == "raise":
             first = tuple(int(i) for i in np.argwhere(bad)[0])
-            raise ValueError(f"reconstructed has {int(bad.sum())} invalid (NaN) points of "
-                             f"{d.size} (first at index {first}); pass invalid='ignore' to "
-                             "average the valid ones")
+            raise InvalidValueError(f"reconstructed has {int(bad.sum())} invalid (NaN) points of "
+                                    f"{d.size} (first at index {first}); pass invalid='ignore' to "
+                                    "average the valid ones")
         if bad.all():
             return float("nan")
         return float(np.mean(d[~bad]))

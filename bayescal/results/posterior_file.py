@@ -11,6 +11,7 @@ import pathlib
 import numpy as np
 from scipy import stats
 
+from ..errors import InvalidValueError, MissingFileError, OutputExistsError
 from ..likelihood.priors import Prior
 from ..scene.floorplan import FloorPlan
 from ..stats.chains import ChainDiagnostics
@@ -49,9 +50,9 @@ def save_posterior(post, path, *, overwrite=False):
     """Write ``post`` to ``path`` (``.npz``), atomically; see :meth:`Posterior.save`."""
     path = pathlib.Path(path)
     if path.suffix != ".npz":
-        raise ValueError(f"path must end in .npz, got {str(path)!r}")
+        raise InvalidValueError(f"path must end in .npz, got {str(path)!r}")
     if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+        raise OutputExistsError(f"{path} exists; pass overwrite=True to replace it")
     prior = _prior_record(post.prior)
     meta = {"format": "bayescal-posterior", "version": FORMAT_VERSION,
             "noise_names": list(post.noise_names), "sigma_px": post.sigma_px,
@@ -84,16 +85,16 @@ def read_posterior(path):
     :func:`bayescal.load_posterior`."""
     path = pathlib.Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"no posterior file at {path}")
+        raise MissingFileError(f"no posterior file at {path}")
     with np.load(path, allow_pickle=False) as f:
         if "meta_json" not in f:
-            raise ValueError(f"{path} is not a bayescal posterior file (no meta_json)")
+            raise InvalidValueError(f"{path} is not a bayescal posterior file (no meta_json)")
         meta = json.loads(str(f["meta_json"]))
         if meta.get("format") != "bayescal-posterior":
-            raise ValueError(f"{path} is not a bayescal posterior file")
+            raise InvalidValueError(f"{path} is not a bayescal posterior file")
         if meta["version"] > FORMAT_VERSION:
-            raise ValueError(f"{path} has format version {meta['version']}; this bayescal "
-                             f"reads up to {FORMAT_VERSION}")
+            raise InvalidValueError(f"{path} has format version {meta['version']}; this bayescal "
+                                    f"reads up to {FORMAT_VERSION}")
         arrays = {k: f[k] for k in ARRAYS}
         sigma_scene = f["sigma_scene"] if "sigma_scene" in f else None
         wall_samples = f["wall_samples"] if "wall_samples" in f else None

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from ..errors import InvalidValueError, MissingDependencyError
 from ..sensor.laser import triangulate_geo
 
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
@@ -57,7 +58,7 @@ class _PointCloud:
 
         suffix = pathlib.Path(path).suffix.lower()
         if suffix not in (".ply", ".npz"):
-            raise ValueError(f"path must end in .ply or .npz, got {str(path)!r}")
+            raise InvalidValueError(f"path must end in .ply or .npz, got {str(path)!r}")
         write = write_ply if suffix == ".ply" else write_npz
         mean = np.atleast_2d(self.mean)
         cov = np.reshape(self.covariance, (-1, 3, 3))
@@ -70,7 +71,7 @@ class _PointCloud:
         try:
             import open3d
         except ImportError:
-            raise ImportError("to_open3d needs open3d (pip install open3d)") from None
+            raise MissingDependencyError("to_open3d needs open3d (pip install open3d)") from None
         pts = np.atleast_2d(self.mean)
         pts = pts[np.all(np.isfinite(pts), axis=-1)]
         return open3d.geometry.PointCloud(open3d.utility.Vector3dVector(pts))
@@ -329,8 +330,8 @@ class Reconstructor:
         its pixel noise (or ``pixel_cov``); a :class:`Reconstruction`."""
 
         if self.theta_samples is None:
-            raise ValueError("the sampled path needs posterior draws (a Posterior's "
-                             "reconstructor)")
+            raise InvalidValueError("the sampled path needs posterior draws (a Posterior's "
+                                    "reconstructor)")
         n = len(self.theta_samples)
         idx = np.linspace(0, n - 1, min(int(max_samples), n)).round().astype(int)
         samples = _noisy_triangulation(self.theta_samples[idx], self.sigma_samples[idx],
@@ -361,13 +362,13 @@ class Reconstructor:
         from .._validation import as_pixels
 
         if method not in ("auto", "linear", "sampled"):
-            raise ValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
+            raise InvalidValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
         pixels = np.atleast_2d(as_pixels(pixels))
         cov_px = (self.sigma_px**2 * np.eye(2) if pixel_cov is None
                   else np.asarray(pixel_cov, float))
         if cov_px.shape not in ((2, 2), (len(pixels), 2, 2)):
-            raise ValueError(f"pixel_cov must have shape (2, 2) or (M, 2, 2) = "
-                             f"{(len(pixels), 2, 2)}, got {cov_px.shape}")
+            raise InvalidValueError(f"pixel_cov must have shape (2, 2) or (M, 2, 2) = "
+                                    f"{(len(pixels), 2, 2)}, got {cov_px.shape}")
         if method == "sampled" or (method == "auto" and not self.linear_ok
                                    and self.theta_samples is not None):
             return self.sampled(pixels, pixel_cov=pixel_cov)
@@ -390,9 +391,9 @@ def reconstruct_posterior(post, pixels, *, approx_points=None, sigma_scene=None,
     from .._validation import as_pixels, resolve_rng
 
     if method not in ("auto", "linear", "sampled"):
-        raise ValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
+        raise InvalidValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
     if not 0 < level < 1:
-        raise ValueError(f"level must lie in (0, 1), got {level!r}")
+        raise InvalidValueError(f"level must lie in (0, 1), got {level!r}")
     pixels = as_pixels(pixels)
     single = pixels.ndim == 1
     pixels = np.atleast_2d(pixels)
@@ -427,11 +428,11 @@ def _sampled_posterior(post, pixels, approx_points, sigma_scene, level, max_samp
         return Reconstruction(_noisy_triangulation(theta, sig, pixels, pixel_cov, rng), level)
     approx = np.atleast_2d(as_points(approx_points, "approx_points"))
     if approx.shape != (len(pixels), 3):
-        raise ValueError(f"approx_points must have shape (M, 3) = {(len(pixels), 3)}, "
-                         f"got {approx.shape}")
+        raise InvalidValueError(f"approx_points must have shape (M, 3) = {(len(pixels), 3)}, "
+                                f"got {approx.shape}")
     if sigma_scene is None and "kappa" not in post.noise_names:
-        raise ValueError("sigma_scene is required with approx_points (the scene noise "
-                         "was given, not inferred, at calibration)")
+        raise InvalidValueError("sigma_scene is required with approx_points (the scene noise "
+                                "was given, not inferred, at calibration)")
     kw = {"prior": post.prior} if post.model == "misaligned" else {}
     lik = (MisalignedLikelihood if kw else LaserLikelihood)(
         pixels, approx, sigma_px=None if "sigma_px" in post.noise_names else post.sigma_px,

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from .._validation import check_positive, resolve_rng
+from ..errors import InvalidValueError
 from ..image.views import BoardView, board_points
 from ..sensor.board import CAMERA_NAMES, project_board, rotation_from_vector
 from ..sensor.camera import backproject_theta
@@ -25,12 +26,13 @@ def _intrinsics(intrinsics):
     if hasattr(intrinsics, "keys"):
         missing = [n for n in CAMERA_NAMES if n not in intrinsics]
         if missing:
-            raise ValueError(f"intrinsics lack {missing}; expected the names {CAMERA_NAMES}")
+            raise InvalidValueError(f"intrinsics lack {missing}; expected the names {CAMERA_NAMES}")
         k = np.array([float(intrinsics[n]) for n in CAMERA_NAMES])
     else:
         k = np.asarray(intrinsics, dtype=float)
     if k.shape != (5,) or not np.all(np.isfinite(k)):
-        raise ValueError(f"intrinsics must be 5 finite numbers {CAMERA_NAMES}, got {intrinsics!r}")
+        raise InvalidValueError(
+            f"intrinsics must be 5 finite numbers {CAMERA_NAMES}, got {intrinsics!r}")
     return k
 
 
@@ -77,14 +79,14 @@ def _check_visible(k, R, t, points, uv):
     """Refuse boards seen edge-on or beyond the mirror's rim (eq. (1) folds them back)."""
     n = R[:, 2]
     if abs(n @ t) < 0.05 * np.linalg.norm(t):
-        raise ValueError(f"the board is seen edge-on in pose t = {np.round(t, 1).tolist()} "
-                         "(its plane passes within 3 degrees of the focus)")
+        raise InvalidValueError(f"the board is seen edge-on in pose t = {np.round(t, 1).tolist()} "
+                                "(its plane passes within 3 degrees of the focus)")
     P = points @ R.T + t
     rays, ok = backproject_theta(np.concatenate([k, [0.0, 0.0]]), uv)
     cosang = np.sum(rays * P, axis=1) / np.linalg.norm(P, axis=1)
     if not np.all(ok & (cosang > 1.0 - 1e-9)):
-        raise ValueError(f"the board in pose t = {np.round(t, 1).tolist()} is beyond the "
-                         "mirror's field of view (eq. (1) does not image it)")
+        raise InvalidValueError(f"the board in pose t = {np.round(t, 1).tolist()} is beyond the "
+                                "mirror's field of view (eq. (1) does not image it)")
 
 
 def _backdrop(k, w, h, level):
@@ -100,8 +102,8 @@ def _box(k, pose, nx, ny, square, border, size):
     """Pixel bounding box (u0, u1, v0, v1) of the board and margin, clipped to the image."""
     uv, valid = project_board(k, pose, _outline(nx, ny, square, border))
     if not np.all(valid):
-        raise ValueError("the board (with its margin) is not wholly in front of the camera "
-                         f"in pose {np.round(pose, 3).tolist()}")
+        raise InvalidValueError("the board (with its margin) is not wholly in front of the camera "
+                                f"in pose {np.round(pose, 3).tolist()}")
     w, h = size
     lo = np.floor(uv.min(axis=0)).astype(int) - 2
     hi = np.ceil(uv.max(axis=0)).astype(int) + 3
@@ -158,8 +160,8 @@ def render_board(intrinsics, pose, *, board=(8, 6), square=42.0, image_size=(128
     k = _intrinsics(intrinsics)
     pose = np.asarray(pose, dtype=float)
     if pose.shape != (6,) or not np.all(np.isfinite(pose)):
-        raise ValueError(f"pose must be 6 finite numbers (rotation vector, translation), "
-                         f"got {pose!r}")
+        raise InvalidValueError(f"pose must be 6 finite numbers (rotation vector, translation), "
+                                f"got {pose!r}")
     w, h = (int(s) for s in image_size)
     nx, ny = (int(b) for b in board)
     check_positive(square, "square")
@@ -167,7 +169,7 @@ def render_board(intrinsics, pose, *, board=(8, 6), square=42.0, image_size=(128
     check_positive(psf_px, "psf_px", allow_zero=True)
     ss = int(supersample)
     if ss < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
+        raise InvalidValueError(f"supersample must be >= 1, got {supersample!r}")
     rng = resolve_rng(rng)
     points = board_points((nx, ny), square)
     uv, valid = project_board(k, pose, points)
@@ -175,8 +177,8 @@ def render_board(intrinsics, pose, *, board=(8, 6), square=42.0, image_size=(128
     _check_visible(k, R, pose[3:], points, uv)
     inside = np.all((uv >= 0) & (uv <= [w - 1, h - 1]), axis=1)
     if not np.all(valid & inside):
-        raise ValueError(f"the board's corners are not all inside the {w}x{h} image "
-                         f"in pose {np.round(pose, 3).tolist()}")
+        raise InvalidValueError(f"the board's corners are not all inside the {w}x{h} image "
+                                f"in pose {np.round(pose, 3).tolist()}")
     u0, u1, v0, v1 = _box(k, pose, nx, ny, square, border, (w, h))
     image = _backdrop(k, w, h, levels[2])
     off = (np.arange(ss) + 0.5) / ss - 0.5

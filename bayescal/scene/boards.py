@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import resolve_rng
+from ..errors import FitError
 from ..image.views import BoardView, board_points
 from ..sensor.board import project_board, vector_from_rotation
 
@@ -62,7 +63,7 @@ def _random_pose(rng, pts, k, image_size, radius, distance):
         uv, ok = project_board(k, pose, pts)
         if ok.all() and np.all((uv > 5) & (uv < np.array([w, h]) - 5)):
             return pose, uv
-    raise RuntimeError("could not place a visible board: check the intrinsics and image size")
+    raise FitError("could not place a visible board: check the intrinsics and image size")
 
 
 def _view_noise(rng, board, sd, correlation, view_field, pts):

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_finite_array
+from ..errors import InvalidTypeError, InvalidValueError
 from ..sensor.laser import cone_height
 
 __all__ = ["FloorPlan", "Wall", "wall_range", "corner_points", "corner_azimuths",
@@ -81,17 +82,17 @@ def _per_wall_sd(value, name, n):
     try:
         s = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a float or an array of shape ({n},), got "
-                        f"{type(value).__name__}") from None
+        raise InvalidTypeError(f"{name} must be a float or an array of shape ({n},), got "
+                               f"{type(value).__name__}") from None
     if s.ndim > 1 or (s.ndim == 1 and s.shape != (n,)):
-        raise ValueError(f"{name} must be a float or have shape ({n},) (one per wall), "
-                         f"got shape {s.shape}")
+        raise InvalidValueError(f"{name} must be a float or have shape ({n},) (one per wall), "
+                                f"got shape {s.shape}")
     s = np.broadcast_to(s, (n,)).astype(float)
     bad = ~(np.isfinite(s) & (s > 0))
     if np.any(bad):
         k = int(np.argmax(bad))
-        raise ValueError(f"{name} must be finite and positive for every wall, got {s[k]!r} "
-                         f"for wall {k}")
+        raise InvalidValueError(f"{name} must be finite and positive for every wall, got {s[k]!r} "
+                                f"for wall {k}")
     return s
 
 
@@ -136,23 +137,25 @@ class FloorPlan:
     def __init__(self, walls, *, distance_sd, angle_sd, corner_tol=None):
         w = as_finite_array(walls, "walls")
         if w.ndim != 3 or w.shape[1:] != (2, 2) or w.shape[0] < 3:
-            raise ValueError(f"walls must have shape (W, 2, 2) with W >= 3 (segments of end "
-                             f"points (x, y)), got shape {w.shape}")
+            raise InvalidValueError(f"walls must have shape (W, 2, 2) with W >= 3 (segments of end "
+                                    f"points (x, y)), got shape {w.shape}")
         n = w.shape[0]
         lengths = np.linalg.norm(w[:, 1] - w[:, 0], axis=-1)
         if np.any(lengths <= 0):
             k = int(np.argmin(lengths))
-            raise ValueError(f"walls: wall {k} has zero length (end points {w[k].tolist()})")
+            raise InvalidValueError(f"walls: wall {k} has zero length (end points {w[k].tolist()})")
         tol = 0.05 * float(np.median(lengths)) if corner_tol is None else float(corner_tol)
         if not (np.isfinite(tol) and tol >= 0):
-            raise ValueError(f"corner_tol must be a finite non-negative number, got {corner_tol!r}")
+            raise InvalidValueError(
+                f"corner_tol must be a finite non-negative number, got {corner_tol!r}")
         gaps = np.linalg.norm(w[:, 1] - np.roll(w[:, 0], -1, axis=0), axis=-1)
         if np.any(gaps > tol):
             k = int(np.argmax(gaps))
-            raise ValueError(f"walls: the plan must be a closed polygon; wall {k} ends at "
-                             f"{w[k, 1].tolist()} but wall {(k + 1) % n} starts at "
-                             f"{w[(k + 1) % n, 0].tolist()} ({gaps[k]:.4g} mm apart, corner_tol "
-                             f"{tol:.4g} mm)")
+            raise InvalidValueError(
+                f"walls: the plan must be a closed polygon; wall {k} ends at "
+                f"{w[k, 1].tolist()} but wall {(k + 1) % n} starts at "
+                f"{w[(k + 1) % n, 0].tolist()} ({gaps[k]:.4g} mm apart, corner_tol "
+                f"{tol:.4g} mm)")
         # around the sensor: each wall spans a positive azimuth interval seen from the
         # axis (counterclockwise) and the spans add up to one turn (star-shaped polygon)
         az0 = np.arctan2(w[:, 0, 1], w[:, 0, 0])
@@ -162,10 +165,11 @@ class FloorPlan:
         cross = w[:, 0, 0] * w[:, 1, 1] - w[:, 0, 1] * w[:, 1, 0]
         if np.any(cross <= 0) or abs(span.sum() + jump.sum() - 2 * np.pi) > 1e-6:
             k = int(np.argmin(cross))
-            raise ValueError(f"walls must enclose the sensor axis (origin) and be given "
-                             f"counterclockwise, each wall seen from the axis at increasing "
-                             f"azimuth; wall {k} ({w[k].tolist()}) is not (reverse the order "
-                             f"of a clockwise plan)")
+            raise InvalidValueError(
+                f"walls must enclose the sensor axis (origin) and be given "
+                f"counterclockwise, each wall seen from the axis at increasing "
+                f"azimuth; wall {k} ({w[k].tolist()}) is not (reverse the order "
+                f"of a clockwise plan)")
         e = w[:, 1] - w[:, 0]
         normal = np.stack([e[:, 1], -e[:, 0]], axis=-1) / lengths[:, None]   # outward (CCW)
         self.distances = np.einsum("ki,ki->k", normal, w[:, 0])
@@ -195,10 +199,11 @@ class FloorPlan:
         d = as_finite_array(distances, "distances")
         a = as_finite_array(angles, "angles")
         if d.ndim != 1 or a.shape != d.shape:
-            raise ValueError(f"distances and angles must both have shape (W,), got {d.shape} "
-                             f"and {a.shape}")
+            raise InvalidValueError(
+                f"distances and angles must both have shape (W,), got {d.shape} "
+                f"and {a.shape}")
         if np.any(d <= 0):
-            raise ValueError(f"distances must be positive, got min {d.min()!r}")
+            raise InvalidValueError(f"distances must be positive, got min {d.min()!r}")
         c = corner_points(d, a)                             # corner k: walls k and k+1
         seg = np.stack([np.roll(c, 1, axis=0), c], axis=1)
         return cls(seg, distance_sd=distance_sd, angle_sd=angle_sd)
@@ -235,8 +240,8 @@ class FloorPlan:
             return cls(arrays["segments"], distance_sd=arrays["distance_sd"],
                        angle_sd=arrays["angle_sd"], corner_tol=float(arrays["corner_tol"]))
         except KeyError as e:
-            raise ValueError(f"floor-plan arrays lack the key {e.args[0]!r} (need segments, "
-                             f"distance_sd, angle_sd, corner_tol)") from None
+            raise InvalidValueError(f"floor-plan arrays lack the key {e.args[0]!r} (need segments, "
+                                    f"distance_sd, angle_sd, corner_tol)") from None
 
     def corner_azimuths(self):
         """Azimuths (rad) of the plan's corners, shape (W,): corner k joins walls k and k+1."""

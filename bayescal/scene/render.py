@@ -15,6 +15,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from .._validation import check_positive, resolve_rng
+from ..errors import InvalidValueError
 from ..sensor.camera import backproject, project
 from ..sensor.laser import cone_point
 from ..sensor.parameters import SensorParams, as_param_array
@@ -131,11 +132,12 @@ def _check_render_args(params, walls, shape, bits):
     params = SensorParams.from_array(as_param_array(params))
     walls = np.asarray(walls, dtype=float)
     if walls.ndim != 3 or walls.shape[1:] != (2, 2):
-        raise ValueError(f"room must be wall segments of shape (W, 2, 2) mm, got {walls.shape}")
+        raise InvalidValueError(
+            f"room must be wall segments of shape (W, 2, 2) mm, got {walls.shape}")
     if len(shape) != 2 or min(shape) < 16:
-        raise ValueError(f"shape must be (height, width) >= 16 px, got {shape!r}")
+        raise InvalidValueError(f"shape must be (height, width) >= 16 px, got {shape!r}")
     if bits not in (8, 16):
-        raise ValueError(f"bits must be 8 or 16, got {bits!r}")
+        raise InvalidValueError(f"bits must be 8 or 16, got {bits!r}")
     return params, walls
 
 
@@ -215,7 +217,7 @@ def render_image(params, room, *, shape=(600, 800), floor_z=-1500.0, ceiling_z=N
     rng = resolve_rng(rng)
     pose = np.zeros(4) if laser is None else as_pose_array(laser, "laser")
     if pose.shape != (4,):
-        raise ValueError(f"laser must be one pose (4,), got shape {pose.shape}")
+        raise InvalidValueError(f"laser must be one pose (4,), got shape {pose.shape}")
     az, pts, uv_true = _ring_truth(params, walls, int(n_truth), pose)
     ok = np.all(np.isfinite(uv_true), axis=1)
     az, pts, uv_true = az[ok], pts[ok], uv_true[ok]

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._validation import check_positive, resolve_rng
+from ..errors import InvalidTypeError, InvalidValueError
 from ..sensor.camera import project_theta
 from ..sensor.parameters import SensorParams, to_identifiable
 from ..sensor.pose import LaserPose, cone_point_pose_theta
@@ -187,7 +188,7 @@ def room_walls(range_mm, n_walls=7):
     """
     range_mm = check_positive(range_mm, "range_mm")
     if int(n_walls) != n_walls or n_walls < 3:
-        raise ValueError(f"n_walls must be an integer >= 3, got {n_walls!r}")
+        raise InvalidValueError(f"n_walls must be an integer >= 3, got {n_walls!r}")
     n_walls = int(n_walls)
     k = np.arange(n_walls)
     ang = 2 * np.pi * k / n_walls + 0.25 * np.sin(2.7 * k + 0.4) * (np.pi / n_walls)
@@ -338,20 +339,20 @@ def simulate_room(params=None, *, range_mm, n_points=580, n_walls=7, sigma_px=0.
     """
     params = SensorParams.paper() if params is None else params
     if not isinstance(params, SensorParams):
-        raise TypeError(f"params must be a SensorParams, got {type(params).__name__}")
+        raise InvalidTypeError(f"params must be a SensorParams, got {type(params).__name__}")
     nominal = SensorParams.paper() if nominal is None else nominal
     range_mm = check_positive(range_mm, "range_mm")
     if (isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer, float))
             or int(n_points) != n_points or n_points < 1):
-        raise ValueError(f"n_points must be a positive integer, got {n_points!r}")
+        raise InvalidValueError(f"n_points must be a positive integer, got {n_points!r}")
     n_points = int(n_points)
-    sigma_px = check_positive(sigma_px, "sigma_px", allow_zero=True)
-    sigma_3d = check_positive(sigma_3d, "sigma_3d", allow_zero=True)
-    approx_error = check_positive(approx_error, "approx_error", allow_zero=True)
+    sigma_px, sigma_3d, approx_error = (check_positive(v, k, allow_zero=True) for v, k in (
+        (sigma_px, "sigma_px"), (sigma_3d, "sigma_3d"), (approx_error, "approx_error")))
     if approx_model not in APPROX_MODELS:
-        raise ValueError(f"approx_model must be one of {APPROX_MODELS}, got {approx_model!r}")
-    calib_distance = (0.8 * range_mm if calib_distance_mm is None
-                      else check_positive(calib_distance_mm, "calib_distance_mm"))
+        raise InvalidValueError(
+            f"approx_model must be one of {APPROX_MODELS}, got {approx_model!r}")
+    calib_distance = 0.8 * range_mm if calib_distance_mm is None else \
+        check_positive(calib_distance_mm, "calib_distance_mm")
     plan_angle_sd = check_positive(plan_angle_sd, "plan_angle_sd")
     laser = _pose_from(tilt, offset)
     ss = np.random.SeedSequence(resolve_rng(rng).integers(2**63))
@@ -404,8 +405,8 @@ def _room_points(xy, rho, params, theta, laser):
         return np.column_stack([xy, _cone_z(rho, params)])
     points = cone_point_pose_theta(theta, laser.to_array(), xy)
     if not np.all(np.isfinite(points)):
-        raise ValueError(f"laser pose {laser}: the tilted laser cone does not reach every "
-                         "wall of this room (its rays pass above it)")
+        raise InvalidValueError(f"laser pose {laser}: the tilted laser cone does not reach every "
+                                "wall of this room (its rays pass above it)")
     return points
 
 
@@ -416,12 +417,12 @@ def _pose_from(tilt, offset):
         try:
             a = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
-            raise TypeError(f"{name} must be a pair of numbers, got {value!r}") from None
+            raise InvalidTypeError(f"{name} must be a pair of numbers, got {value!r}") from None
         if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} must be a finite pair (x, y), got {value!r}")
+            raise InvalidValueError(f"{name} must be a finite pair (x, y), got {value!r}")
         pairs[name] = a
     if np.any(np.abs(pairs["tilt"]) >= np.pi / 4):
-        raise ValueError(f"tilt must be below pi/4 rad in each component, got {tilt!r}")
+        raise InvalidValueError(f"tilt must be below pi/4 rad in each component, got {tilt!r}")
     return LaserPose(*pairs["tilt"], *pairs["offset"])
 
 

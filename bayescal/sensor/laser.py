@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_finite_array, as_pixels
+from ..errors import InvalidValueError
 from .camera import backproject_theta
 from .parameters import as_param_array, to_identifiable
 from .pose import as_pose_array, cone_point_pose_theta, triangulate_pose_theta
@@ -234,7 +235,7 @@ def triangulate_plane(params, pixels, plane, *, return_valid=False):
     pixels = as_pixels(pixels)
     plane = as_finite_array(plane, "plane", last_dim=4)
     if np.any(np.linalg.norm(plane[..., :3], axis=-1) == 0):
-        raise ValueError("plane normal (a, b, c) must be non-zero")
+        raise InvalidValueError("plane normal (a, b, c) must be non-zero")
     rays, ok = backproject_theta(theta, pixels)
     denom = np.sum(rays * plane[..., :3], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -22,6 +22,8 @@ from dataclasses import astuple, dataclass, fields
 
 import numpy as np
 
+from ..errors import InvalidTypeError, InvalidValueError
+
 __all__ = [
     "PARAM_NAMES",
     "IDENTIFIABLE_NAMES",
@@ -87,22 +89,23 @@ class SensorParams:
             try:
                 value = float(value)
             except (TypeError, ValueError):
-                raise TypeError(f"SensorParams.{f.name} must be a number, got {value!r}") from None
+                raise InvalidTypeError(
+                    f"SensorParams.{f.name} must be a number, got {value!r}") from None
             if not np.isfinite(value):
-                raise ValueError(f"SensorParams.{f.name} must be finite, got {value!r}")
+                raise InvalidValueError(f"SensorParams.{f.name} must be finite, got {value!r}")
             object.__setattr__(self, f.name, value)
         if self.xi + self.phi <= 0:
-            raise ValueError(f"xi + phi must be positive, got xi={self.xi}, phi={self.phi}")
+            raise InvalidValueError(f"xi + phi must be positive, got xi={self.xi}, phi={self.phi}")
         if self.xi < 0:
-            raise ValueError(f"xi must be non-negative, got {self.xi}")
+            raise InvalidValueError(f"xi must be non-negative, got {self.xi}")
         if self.alpha_u == 0 or self.alpha_v == 0:
-            raise ValueError(
+            raise InvalidValueError(
                 f"alpha_u and alpha_v must be non-zero, got {self.alpha_u}, {self.alpha_v}"
             )
         if self.h <= 0:
-            raise ValueError(f"h must be positive (mm), got {self.h}")
+            raise InvalidValueError(f"h must be positive (mm), got {self.h}")
         if not 0 < self.beta < np.pi / 2:
-            raise ValueError(f"beta must lie in (0, pi/2) radians, got {self.beta}")
+            raise InvalidValueError(f"beta must lie in (0, pi/2) radians, got {self.beta}")
 
     @classmethod
     def paper(cls):
@@ -119,7 +122,8 @@ class SensorParams:
         """Build from an array of shape (8,) in the order of :data:`PARAM_NAMES`."""
         a = np.asarray(a, dtype=float)
         if a.shape != (8,):
-            raise ValueError(f"a must have shape (8,) in the order {PARAM_NAMES}, got {a.shape}")
+            raise InvalidValueError(
+                f"a must have shape (8,) in the order {PARAM_NAMES}, got {a.shape}")
         return cls(*a.tolist())
 
     def to_identifiable(self):
@@ -135,15 +139,17 @@ class SensorParams:
         """
         theta = np.asarray(theta, dtype=float)
         if theta.shape != (7,):
-            raise ValueError(f"theta must have shape (7,) in the order {IDENTIFIABLE_NAMES}, "
-                             f"got {theta.shape}")
+            raise InvalidValueError(
+                f"theta must have shape (7,) in the order {IDENTIFIABLE_NAMES}, "
+                f"got {theta.shape}")
         return cls.from_array(from_identifiable(theta, phi))
 
     def replace(self, **changes):
         """Return a copy with some parameters changed (names as in :data:`PARAM_NAMES`)."""
         unknown = set(changes) - set(PARAM_NAMES)
         if unknown:
-            raise TypeError(f"unknown parameter name(s) {sorted(unknown)}; expected {PARAM_NAMES}")
+            raise InvalidTypeError(
+                f"unknown parameter name(s) {sorted(unknown)}; expected {PARAM_NAMES}")
         d = dict(zip(PARAM_NAMES, astuple(self), strict=True))
         d.update(changes)
         return SensorParams(**d)
@@ -164,11 +170,11 @@ def as_param_array(params, name="params"):
     try:
         a = np.asarray(params, dtype=float)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a SensorParams or an array of shape (..., 8), "
-                        f"got {type(params).__name__}") from None
+        raise InvalidTypeError(f"{name} must be a SensorParams or an array of shape (..., 8), "
+                               f"got {type(params).__name__}") from None
     if a.ndim == 0 or a.shape[-1] != 8:
-        raise ValueError(f"{name} must be a SensorParams or an array of shape (..., 8), "
-                         f"got shape {a.shape}")
+        raise InvalidValueError(f"{name} must be a SensorParams or an array of shape (..., 8), "
+                                f"got shape {a.shape}")
     return a
 
 
@@ -246,30 +252,31 @@ def camera_moments(camera):
     else:
         intr, cov = getattr(camera, "intrinsics", None), getattr(camera, "covariance", None)
         if intr is None or cov is None:
-            raise TypeError("camera must be a camera calibration (with intrinsics and "
-                            "covariance(), e.g. bc.calibrate_camera(views)) or a pair "
-                            f"(mean (5,), cov (5, 5)), got {type(camera).__name__}")
+            raise InvalidTypeError("camera must be a camera calibration (with intrinsics and "
+                                   "covariance(), e.g. bc.calibrate_camera(views)) or a pair "
+                                   f"(mean (5,), cov (5, 5)), got {type(camera).__name__}")
         missing = [n for n in CAMERA_NAMES if n not in intr]
         if missing:
-            raise ValueError(f"camera.intrinsics has no {', '.join(missing)}; expected the "
-                             f"keys {', '.join(CAMERA_NAMES)}")
+            raise InvalidValueError(f"camera.intrinsics has no {', '.join(missing)}; expected the "
+                                    f"keys {', '.join(CAMERA_NAMES)}")
         mean = [intr[n] for n in CAMERA_NAMES]
         cov = cov() if callable(cov) else cov
     mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
     if mean.shape != (5,) or cov.ndim != 2 or cov.shape[0] < 5 or cov.shape[0] != cov.shape[1]:
-        raise ValueError(f"camera: expected a mean of shape (5,) and a covariance of at least "
-                         f"(5, 5), got {mean.shape} and {cov.shape}")
+        raise InvalidValueError(
+            f"camera: expected a mean of shape (5,) and a covariance of at least "
+            f"(5, 5), got {mean.shape} and {cov.shape}")
     cov = 0.5 * (cov[:5, :5] + cov[:5, :5].T)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-        raise ValueError("camera: the intrinsics and their covariance must be finite")
+        raise InvalidValueError("camera: the intrinsics and their covariance must be finite")
     try:
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        raise ValueError("camera: the covariance of (xi, gamma_u, gamma_v, u0, v0) is not "
-                         f"positive definite (variances {np.diag(cov)})") from None
+        raise InvalidValueError("camera: the covariance of (xi, gamma_u, gamma_v, u0, v0) is not "
+                                f"positive definite (variances {np.diag(cov)})") from None
     if mean[0] < 0 or mean[1] == 0 or mean[2] == 0:
-        raise ValueError(f"camera: expected xi >= 0 and gamma_u, gamma_v nonzero, got "
-                         f"{dict(zip(CAMERA_NAMES, mean.tolist(), strict=True))}")
+        raise InvalidValueError(f"camera: expected xi >= 0 and gamma_u, gamma_v nonzero, got "
+                                f"{dict(zip(CAMERA_NAMES, mean.tolist(), strict=True))}")
     return mean, cov
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InvalidTypeError, InvalidValueError
 from .camera import backproject_theta
 
 __all__ = [
@@ -71,9 +72,9 @@ class LaserPose:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating,
                                                                  np.integer)):
-                raise TypeError(f"{name} must be a real number, got {value!r}")
+                raise InvalidTypeError(f"{name} must be a real number, got {value!r}")
             if not np.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value!r}")
+                raise InvalidValueError(f"{name} must be finite, got {value!r}")
             object.__setattr__(self, name, float(value))
 
     @classmethod
@@ -81,7 +82,7 @@ class LaserPose:
         """Pose from ``(tilt_x, tilt_y, offset_x, offset_y)``, shape (4,)."""
         a = np.asarray(a, dtype=float)
         if a.shape != (4,):
-            raise ValueError(f"pose array must have shape (4,), got {a.shape}")
+            raise InvalidValueError(f"pose array must have shape (4,), got {a.shape}")
         return cls(*map(float, a), h=h)
 
     def to_array(self):
@@ -102,7 +103,7 @@ class LaserPose:
     def apex(self):
         """ndarray, shape (3,): the cone's apex in frame C, mm (needs ``h``)."""
         if self.h is None:
-            raise ValueError("LaserPose.apex needs h (the apex depth, mm); got h=None")
+            raise InvalidValueError("LaserPose.apex needs h (the apex depth, mm); got h=None")
         return np.array([self.offset_x, self.offset_y, -float(self.h)])
 
     @property
@@ -125,13 +126,13 @@ def as_pose_array(laser, name="laser"):
     try:
         a = np.asarray(laser, dtype=float)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a LaserPose or an array (..., 4) of "
-                        f"(tilt_x, tilt_y, offset_x, offset_y), got {laser!r}") from None
+        raise InvalidTypeError(f"{name} must be a LaserPose or an array (..., 4) of "
+                               f"(tilt_x, tilt_y, offset_x, offset_y), got {laser!r}") from None
     if a.ndim == 0 or a.shape[-1] != 4:
-        raise ValueError(f"{name} must have shape (..., 4) (tilt_x, tilt_y, offset_x, "
-                         f"offset_y), got shape {a.shape}")
+        raise InvalidValueError(f"{name} must have shape (..., 4) (tilt_x, tilt_y, offset_x, "
+                                f"offset_y), got shape {a.shape}")
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite, got {a}")
+        raise InvalidValueError(f"{name} must be finite, got {a}")
     return a
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import as_finite_array
+from ..errors import InvalidValueError
 from ..sensor.parameters import identifiable_jacobian
 
 __all__ = [
@@ -98,19 +99,19 @@ def identifiability_report(jacobian, names, *, scale=None, rtol=1e-6):
     """
     J = as_finite_array(jacobian, "jacobian")
     if J.ndim != 2:
-        raise ValueError(f"jacobian must have shape (n_residuals, n_params), got {J.shape}")
+        raise InvalidValueError(f"jacobian must have shape (n_residuals, n_params), got {J.shape}")
     names = tuple(str(n) for n in names)
     if len(names) != J.shape[1]:
-        raise ValueError(f"names must have one entry per jacobian column ({J.shape[1]}), "
-                         f"got {len(names)}")
+        raise InvalidValueError(f"names must have one entry per jacobian column ({J.shape[1]}), "
+                                f"got {len(names)}")
     if not (np.isfinite(rtol) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+        raise InvalidValueError(f"rtol must lie in (0, 1), got {rtol!r}")
     if scale is None:
         scale = np.linalg.norm(J, axis=0)
     else:
         scale = as_finite_array(scale, "scale")
         if scale.shape != (J.shape[1],):
-            raise ValueError(f"scale must have shape ({J.shape[1]},), got {scale.shape}")
+            raise InvalidValueError(f"scale must have shape ({J.shape[1]},), got {scale.shape}")
     scale = np.where(scale == 0, 1.0, np.abs(scale))
     Js = J / scale
     # thin SVD unless there are fewer residuals than columns (then all of V is needed)
@@ -175,13 +176,13 @@ def covariance_8_from_identifiable(theta, phi, cov7, var_phi):
     """
     theta = as_finite_array(theta, "theta")
     if theta.shape != (7,):
-        raise ValueError(f"theta must have shape (7,), got {theta.shape}")
+        raise InvalidValueError(f"theta must have shape (7,), got {theta.shape}")
     cov7 = as_finite_array(cov7, "cov7", allow_nan=True)
     if cov7.shape != (7, 7):
-        raise ValueError(f"cov7 must have shape (7, 7), got {cov7.shape}")
+        raise InvalidValueError(f"cov7 must have shape (7, 7), got {cov7.shape}")
     var_phi = float(var_phi)
     if not var_phi >= 0:
-        raise ValueError(f"var_phi must be a non-negative variance, got {var_phi!r}")
+        raise InvalidValueError(f"var_phi must be a non-negative variance, got {var_phi!r}")
     C = np.zeros((8, 8))
     C[:7, :7] = cov7
     C[7, 7] = var_phi

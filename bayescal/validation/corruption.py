@@ -27,7 +27,7 @@ import numpy as np
 
 from .._validation import resolve_rng
 from ..checks.inputs import DuplicateRowsWarning
-from ..errors import InputError, NotConvergedError
+from ..errors import InputError, InvalidValueError, NotConvergedError
 from ..fit.simultaneous import calibrate_simultaneous
 from ..mcmc.sampling import sample_posterior
 from ..scene.floorplan import FloorPlan
@@ -269,14 +269,14 @@ def corrupt(ds, kind, *, count=1, rng=None):
         pix, apx = np.concatenate([pix, pix[block]]), np.concatenate([apx, apx[block]])
     elif kind == "wall_off":
         if ds.floor_plan is None:
-            raise ValueError("kind='wall_off' needs a room with a floor plan")
+            raise InvalidValueError("kind='wall_off' needs a room with a floor plan")
         plan = ds.floor_plan
         walls = _shift_wall(np.array(plan.walls, float), int(rng.integers(plan.n_walls)), 1.3)
         bad = FloorPlan(walls, distance_sd=plan.distance_sd, angle_sd=plan.angle_sd)
         return Corruption(kind, pix, apx, np.array([], int), bad)
     else:
-        raise ValueError(f"kind must be one of {KINDS + PLAN_MIXED_KINDS + PLAN_KINDS}, "
-                         f"got {kind!r}")
+        raise InvalidValueError(f"kind must be one of {KINDS + PLAN_MIXED_KINDS + PLAN_KINDS}, "
+                                f"got {kind!r}")
     return Corruption(kind, pix, apx, np.asarray(rows, int))
 
 

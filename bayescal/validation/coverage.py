@@ -39,6 +39,7 @@ import warnings
 import numpy as np
 from scipy import stats
 
+from ..errors import InvalidValueError
 from ..likelihood.priors import Prior, default_prior
 from ..mcmc.sampling import NotConvergedWarning, sample_posterior
 from ..scene.simulate import simulate_room
@@ -232,7 +233,7 @@ def coverage_replication(room, n_points, seed, *, sampler=None, prior_centre="dr
     pix, approx, s_scene = noisy_data(points, pixels, sigma_px=room["sigma_px"],
                                       approx_error=room["approx_error"], rng=rng)
     if prior_centre not in ("drawn", "truth"):
-        raise ValueError(f"prior_centre must be 'drawn' or 'truth', got {prior_centre!r}")
+        raise InvalidValueError(f"prior_centre must be 'drawn' or 'truth', got {prior_centre!r}")
     prior = drawn_prior(truth, rng) if prior_centre == "drawn" else None
     t0 = time.perf_counter()
     with warnings.catch_warnings():
@@ -412,7 +413,7 @@ def summarize_sbc(ranks, *, n_bins=SBC_BINS, n_draws=SBC_DRAWS):
     ranks = np.asarray(ranks)
     n_vals = n_draws + 1
     if n_vals % n_bins:
-        raise ValueError(f"n_draws + 1 = {n_vals} must be a multiple of n_bins = {n_bins}")
+        raise InvalidValueError(f"n_draws + 1 = {n_vals} must be a multiple of n_bins = {n_bins}")
     b = ranks // (n_vals // n_bins)
     counts = np.stack([np.bincount(b[:, k], minlength=n_bins) for k in range(ranks.shape[1])])
     e = len(ranks) / n_bins

@@ -15,6 +15,8 @@ import warnings
 
 import numpy as np
 
+from ..errors import InvalidValueError
+
 __all__ = ["executor", "run_trials"]
 
 
@@ -45,8 +47,8 @@ def executor(*, workers=2, scheduler=None):
         try:
             import distributed
         except ImportError:
-            raise ValueError(f"--scheduler {scheduler!r} needs the 'dask' extra "
-                             "(the distributed package)") from None
+            raise InvalidValueError(f"--scheduler {scheduler!r} needs the 'dask' extra "
+                                    "(the distributed package)") from None
         client = distributed.Client(scheduler, set_as_default=False, timeout="20s")
         try:
             yield client.get_executor(pure=False)
