@@ -1,4 +1,5 @@
-"""The command line end to end (subprocess), its output-folder rules, and the report helpers.
+"""The command line end to end (in this process; by subprocess where the interpreter
+matters), its output-folder rules, and the report helpers.
 
 Every bad-input case checks three things: exit code 2, a message naming the
 file, line and column, and that nothing was written.
@@ -13,6 +14,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import bayescal
 import bayescal as bc
@@ -23,12 +25,8 @@ from bayescal.report.report import linear_reconstruction
 N_POINTS = 60
 
 
-def run(*args, cwd, env=None, timeout=600):
-    """Run ``python -m bayescal ARGS`` in ``cwd``; returns the CompletedProcess."""
-    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
-    full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **(env or {}))
-    return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, env=full_env, timeout=timeout)
+#: ``bayescal ARGS`` in a folder (in this process; a subprocess when ``env`` is given)
+run = run_cli
 
 
 @pytest.fixture(scope="module")

@@ -2,16 +2,14 @@
 ``reconstruct`` with no hand editing, any camera size, extract's ``flagged`` column, and
 the papercuts a new user met (each where it can fail)."""
 
-import contextlib
-import io
 import json
 import os
 import re
 import stat
-import types
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import bayescal as bc
 from bayescal.cli.main import main
@@ -20,17 +18,8 @@ from bayescal.cli.options import cli_words
 pytest.importorskip("imageio.v3")
 
 
-def run(*args, cwd):
-    """``bayescal ARGS`` in ``cwd``, in this process (no interpreter start per command);
-    returns ``returncode``, ``stdout``, ``stderr`` like a finished subprocess."""
-    out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
-    os.chdir(cwd)
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = main([str(a) for a in args])
-    finally:
-        os.chdir(here)
-    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
+#: ``bayescal ARGS`` in a folder, in this process
+run = run_cli
 
 
 def _numbers(path):
