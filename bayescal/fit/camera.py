@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from ..errors import DegenerateInputError, InvalidValueError
+from ..errors import BayescalWarning, DegenerateInputError, InvalidValueError
 from ..image.views import as_views
 from ..likelihood.boards import NOISE_MODELS, BoardLikelihood
 from ..results.camera import CameraResult
@@ -257,14 +257,28 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
         if noise == "view-systematic" and estimator == "weighted":
             k, poses, eta_w, P = _fit_noise_loop(lik, k0, poses0, "per-view", max_outer)
             eta, _ = estimate_noise(lik, k, poses, np.append(eta_w, np.log(0.1)), noise)
-            return _result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w)
+            return _checked(_result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w))
         k, poses, eta, P = _fit_noise_loop(lik, k0, poses0, noise, max_outer)
-        return _result(lik, k, poses, eta, P, noise, size)
+        return _checked(_result(lik, k, poses, eta, P, noise, size))
     except np.linalg.LinAlgError as exc:    # a singular normal matrix: the views are degenerate
         raise DegenerateInputError(
             f"the {lik.K} views do not determine the camera (a singular normal matrix: {exc}); "
             "use more views, boards at several distances and tilts, or check the corners"
         ) from None
+
+
+def _checked(result):
+    """Warn when the views leave intrinsics undetermined (:meth:`CameraResult.unidentified`)."""
+    bad = result.unidentified()
+    if bad:
+        import warnings
+
+        sd = result.std()
+        warnings.warn("the views do not determine the camera: "
+                      + ", ".join(f"{n} = {result.intrinsics[n]:.4g} +- {sd[n]:.3g}" for n in bad)
+                      + " (sd >= |value|); check the board size and square, and use views "
+                      "spread over the image", BayescalWarning, stacklevel=3)
+    return result
 
 
 def sandwich_covariance(lik, k, poses, s2w, s2, t2):
