@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import Failure
 from ..report.document import Document, write_document
 from .jobs import CalibrateJob
+from .matching import IMAGE_TRUTH_NOTE, true_points
 from .runs import run_calibrate, write_laser_pixels, write_simulation
 
 __all__ = ["run_demo", "run_study", "off_design_sensor", "DEMO_ROOM", "OFF_NOMINAL_SCALE"]
@@ -139,23 +140,10 @@ def _image_inputs(job, root, ds):
                     "sd across the ring; red crosses: flagged, not used)", overlay)]
 
 
-#: how the image stage's truth points are made (in its report)
-IMAGE_TRUTH_NOTE = (
-    "Truth of the image stage: the extracted pixels are not the simulated points, so each "
-    "pixel's true laser point is the renderer's true centre line (3600 azimuths, linearly "
-    "interpolated) at the pixel's azimuth under the true sensor; the error is the distance "
-    "from the calibrated point to it (it includes the extraction error).")
-
-
 def _true_points(params, pixels, ring):
     """The true laser point (N, 3), mm, at each pixel's azimuth under the true sensor,
     interpolated on the renderer's true centre line ``ring`` (a RenderTruth)."""
-    from ..sensor.laser import pixel_azimuth
-
-    az = pixel_azimuth(params, pixels)
-    order = np.argsort(ring.azimuth)
-    a, p = ring.azimuth[order], ring.points[order]
-    return np.stack([np.interp(az, a, p[:, j], period=2 * np.pi) for j in range(3)], axis=-1)
+    return true_points(params, pixels, ring.azimuth, ring.points)
 
 
 def _index(out, rows, ds):

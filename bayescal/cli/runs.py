@@ -14,6 +14,7 @@ from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..io.tables import OFFSET_SD_KEY, image_size_line, offset_sd_line
 from ..sensor.pose import POSE_NAMES
+from . import matching as mt
 from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
 
@@ -431,6 +432,7 @@ def run_reconstruct(job, folder):
     out, result = folder.path, job.result
     recon = result.reconstructor(rng=job.seed) if hasattr(result, "param_samples") \
         else result.reconstructor(sigma_px=job.sigma_px)
+    mt.say_pixel_noise(job)
     rows, single = [], len(job.frames) == 1
     frames = job.frames
     if not single:
@@ -439,7 +441,7 @@ def run_reconstruct(job, folder):
         frames = tqdm(frames, desc="frames", unit="frame", file=sys.stderr)
     for path, pixels, pixel_cov in frames:
         t0 = time.perf_counter()
-        rec = recon(pixels, pixel_cov=pixel_cov)
+        rec = recon(pixels, pixel_cov=mt.frame_noise(job, pixel_cov))
         seconds = time.perf_counter() - t0
         name = "reconstruction" if single else path.stem
         folder.add(rec.save(out / f"{name}.ply"))

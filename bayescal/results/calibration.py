@@ -53,19 +53,10 @@ from ..stats.identifiability import (
 )
 from .reconstruction import LinearReconstruction, linear_reconstruction
 
-__all__ = [
-    "IdentifiabilityReport",
-    "identifiability_report",
-    "CalibrationResult",
-    "ConvergenceError",
-    "LinearReconstruction",
-    "covariance_8_from_identifiable",
-    "identifiable_to_paper_jacobian",
-    "linear_reconstruction",
-    "load_result",
-    "RESULT_FORMAT",
-    "RESULT_VERSION",
-]
+__all__ = ["IdentifiabilityReport", "identifiability_report", "CalibrationResult",
+           "ConvergenceError", "LinearReconstruction", "covariance_8_from_identifiable",
+           "identifiable_to_paper_jacobian", "linear_reconstruction", "load_result",
+           "RESULT_FORMAT", "RESULT_VERSION"]
 
 RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
@@ -235,7 +226,8 @@ class CalibrationResult:
             px.
         sigma_px : float, optional
             Pixel noise of the new pixels, px (0: parameter part only). Default:
-            the noise the calibration used, else the one it estimated, else 0.
+            the noise the calibration used, else the one it estimated, else 0; after a fit
+            with per-pixel covariances, :meth:`ring_noise` (its ``sigma_px`` is a scale).
 
         Returns
         -------
@@ -245,6 +237,8 @@ class CalibrationResult:
         from .._validation import as_pixels
 
         pixels = np.atleast_2d(as_pixels(pixels))
+        if sigma_px is None and self.ring_noise() is not None:
+            return self.reconstructor()(pixels)
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         if not (np.isfinite(sigma_px) and sigma_px >= 0):
@@ -260,10 +254,18 @@ class CalibrationResult:
         :class:`~bayescal.results.reconstruction.Reconstructor`."""
         from .reconstruction import Reconstructor
 
+        ring = None if sigma_px is not None else self.ring_noise()
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         return Reconstructor(self.geometry(), self.covariance_identifiable,
-                             float(sigma_px), level=level)
+                             float(sigma_px), level=level, ring_noise=ring)
+
+    def ring_noise(self):
+        """The noise of new pixels without covariances after a fit with them (its
+        ``sigma_px`` a scale on them): :func:`~bayescal.results.pixelnoise.ring_noise_of`."""
+        from .pixelnoise import ring_noise_of
+
+        return ring_noise_of(self)
 
     @property
     def std(self) -> np.ndarray:

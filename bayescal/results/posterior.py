@@ -376,15 +376,24 @@ class Posterior:
         :class:`~bayescal.results.reconstruction.Reconstructor`."""
         from .reconstruction import Reconstructor
 
-        key = (level, rng if isinstance(rng, (int, type(None))) else id(rng))
+        key = (level, rng if isinstance(rng, (int, type(None))) else id(rng),
+               id(getattr(self, "pixel_cov", None)))
         if getattr(self, "_reconstructor", (None, None))[0] != key:
             th = self.geometry_samples
             self._reconstructor = (key, Reconstructor(
                 th.mean(axis=0), np.cov(th, rowvar=False),
                 float(np.mean(self._sigma_px_samples())), theta_samples=th,
                 sigma_samples=self._sigma_px_samples(), probe_pixels=self.pixels,
-                level=level, rng=rng))
+                level=level, rng=rng, ring_noise=self.ring_noise()))
         return self._reconstructor[1]
+
+    def ring_noise(self):
+        """The noise of new pixels without covariances after a fit with them (``pixel_cov``,
+        set by :func:`~bayescal.sample_posterior`, not kept in its file):
+        :func:`~bayescal.results.pixelnoise.ring_noise_of`."""
+        from .pixelnoise import ring_noise_of
+
+        return ring_noise_of(self)
 
     def noise_values(self):
         """Samples of each inferred global on its natural scale, ``{name: (S,)}``.

@@ -24,10 +24,8 @@ from ..errors import InvalidValueError, MissingDependencyError
 from ..sensor.laser import triangulate_geo
 
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
-           "linear_reconstruction",
-           "reconstruct_posterior",
-           "reconstruct_frames",
-           "propagate", "SD_TOLERANCE", "MEAN_TOLERANCE"]
+           "linear_reconstruction", "reconstruct_posterior", "propagate", "SD_TOLERANCE",
+           "MEAN_TOLERANCE"]
 
 #: the fast path is used when its sds are within this fraction of the sampled path's
 #: (90th percentile over the probe pixels and axes)
@@ -259,6 +257,10 @@ class Reconstructor:
         Credible level of the intervals.
     rng : numpy.random.Generator, int or None
         For the sampled path's pixel noise.
+    ring_noise : RingNoise, optional
+        The noise of new pixels without covariances when the calibration weighed its pixels
+        by covariances (``sigma_px`` is then a scale on them, not a noise in px); see
+        :mod:`bayescal.results.pixelnoise`.
 
     Attributes
     ----------
@@ -284,9 +286,10 @@ class Reconstructor:
     """
 
     def __init__(self, theta, cov_theta, sigma_px, *, theta_samples=None, sigma_samples=None,
-                 probe_pixels=None, level=0.9, rng=None):
+                 probe_pixels=None, level=0.9, rng=None, ring_noise=None):
         from .._validation import resolve_rng
 
+        self.ring_noise = ring_noise
         self.theta = np.asarray(theta, float)
         self.cov_theta = np.asarray(cov_theta, float)
         self.sigma_px = float(sigma_px)
@@ -308,8 +311,7 @@ class Reconstructor:
     def _check(self, probe):
         idx = np.linspace(0, len(probe) - 1, min(200, len(probe))).round().astype(int)
         probe = probe[idx]
-        lin_mean, lin_cov = propagate(self.theta, self.cov_theta, probe,
-                                      self.sigma_px**2 * np.eye(2))
+        lin_mean, lin_cov = propagate(self.theta, self.cov_theta, probe, self._noise(probe))
         smp = self.sampled(probe, max_samples=2000)     # Monte-Carlo error ~2 % of an sd
         sd_l = np.sqrt(np.diagonal(lin_cov, axis1=-2, axis2=-1))
         sd_s = np.sqrt(np.diagonal(smp.covariance, axis1=-2, axis2=-1))
@@ -325,10 +327,17 @@ class Reconstructor:
         r = self._radius(probe[ok])
         self.radius_range = (float(r.min()) - 2.0, float(r.max()) + 2.0)
 
+    def _noise(self, pixels):
+        """The pixel noise of pixels given without covariances: (2, 2) or (M, 2, 2) px^2."""
+        if self.ring_noise is not None:
+            return self.ring_noise.covariance(pixels)
+        return self.sigma_px**2 * np.eye(2)
+
     def sampled(self, pixels, *, pixel_cov=None, max_samples=400):
         """The sampled path: each posterior draw triangulates the pixels perturbed by
         its pixel noise (or ``pixel_cov``); a :class:`Reconstruction`."""
-
+        if pixel_cov is None and self.ring_noise is not None:
+            pixel_cov = self.ring_noise.covariance(pixels)
         if self.theta_samples is None:
             raise InvalidValueError("the sampled path needs posterior draws (a Posterior's "
                                     "reconstructor)")
@@ -349,7 +358,7 @@ class Reconstructor:
             px.
         pixel_cov : array_like, shape (M, 2, 2) or (2, 2), optional
             Pixel noise covariance of each pixel, px^2 (e.g. from the laser
-            extractor); default ``sigma_px^2 I``.
+            extractor); default ``ring_noise``'s, else ``sigma_px^2 I``.
         method : {"auto", "linear", "sampled"}
             ``"auto"``: the fast path where it passed its check and the pixel lies
             on the probed ring, the sampled path elsewhere.
@@ -364,8 +373,7 @@ class Reconstructor:
         if method not in ("auto", "linear", "sampled"):
             raise InvalidValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
         pixels = np.atleast_2d(as_pixels(pixels))
-        cov_px = (self.sigma_px**2 * np.eye(2) if pixel_cov is None
-                  else np.asarray(pixel_cov, float))
+        cov_px = self._noise(pixels) if pixel_cov is None else np.asarray(pixel_cov, float)
         if cov_px.shape not in ((2, 2), (len(pixels), 2, 2)):
             raise InvalidValueError(f"pixel_cov must have shape (2, 2) or (M, 2, 2) = "
                                     f"{(len(pixels), 2, 2)}, got {cov_px.shape}")
@@ -377,8 +385,9 @@ class Reconstructor:
         r = self._radius(pixels)
         off = (r < self.radius_range[0]) | (r > self.radius_range[1])
         if method == "auto" and self.theta_samples is not None and off.any():
-            smp = self.sampled(pixels[off], pixel_cov=None if pixel_cov is None or
-                               cov_px.ndim == 2 else cov_px[off])
+            own = pixel_cov is not None or self.ring_noise is not None
+            smp = self.sampled(pixels[off], pixel_cov=None if not own else
+                               cov_px if cov_px.ndim == 2 else cov_px[off])
             out.mean[off], out.covariance[off] = smp.mean, smp.covariance
         out.method = "linear" if not off.any() or self.theta_samples is None else "mixed"
         out.pixels = pixels
