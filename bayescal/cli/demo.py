@@ -61,6 +61,21 @@ def _simulate(job):
     return simulate_room(truth, n_points=job.n_points, rng=rng, **DEMO_ROOM)
 
 
+@contextlib.contextmanager
+def _said_as_final(staged, final):
+    """Warnings given inside: the staged folder named as the final one, and the options the
+    demo chose (``--walls``: its floor plan) as what they are, not as the user's."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        text = str(w.message).replace(staged, final).replace(
+            "with --walls", "with a floor plan (the demo's data/walls.csv)")
+        warnings.warn_explicit(text, w.category, w.filename, w.lineno)
+
+
 def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
     """One calibration into ``root/stage``; stage "floorplan" calibrates from walls.csv.
 
@@ -74,13 +89,13 @@ def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
              else {"calibration": data / "calibration.npz"})
     files = files or {"data": data / "laser.csv", "truth": data / "truth.json", **scene}
     said = io.StringIO()
-    with contextlib.redirect_stdout(said):      # its notes name the staged files
+    staged, final = str(root.path.resolve()), str(job.out.resolve())
+    with contextlib.redirect_stdout(said), _said_as_final(staged, str(job.out)):
         cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
                                   no_progress=not job.progress,
                                   allow_unconverged=job.allow_unconverged,
                                   out=job.out / stage, force=True,
                                   title=f"bayescal demo: {stage}", **files)
-    staged, final = str(root.path.resolve()), str(job.out.resolve())
     print(said.getvalue().replace(staged, str(job.out)), end="")
     cjob = dataclasses.replace(cjob, inputs={k: v.replace(staged, final)
                                              for k, v in cjob.inputs.items()},

@@ -119,8 +119,11 @@ def test_output_folder_is_never_overwritten_without_force(sim, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "mine.txt").write_text("user data")
+    # a folder bayescal did not write: --force is not suggested (it would be refused too)
     r = run("simulate", "--out", out, "--n-points", 10, cwd=tmp_path)
-    assert r.returncode == 2 and "exists and is not empty; pass --force" in r.stderr
+    assert r.returncode == 2 and "was not written by bayescal" in r.stderr
+    assert "--force or not: choose a new or empty folder, e.g. --out" in r.stderr
+    assert f"{out}-2" in r.stderr
     r = run("simulate", "--out", out, "--n-points", 10, "--force", cwd=tmp_path)
     assert r.returncode == 2 and "was not written by bayescal" in r.stderr
     assert [p.name for p in out.iterdir()] == ["mine.txt"]

@@ -172,3 +172,11 @@ def test_a_truth_of_extracted_pixels(tmp_path, capsys):
     truth = truth_for(tmp_path / "truth.json", data)
     assert "points" not in truth and truth["params"] == p.as_dict()
     assert "compared: the parameters only" in capsys.readouterr().out
+
+
+def test_help_shows_pairs_of_numbers_as_pairs(capsys):
+    assert main(["simulate", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "degrees (a misaligned sensor; docs/conventions.md) (default: 0 0)" in text
+    assert "along x and y, mm (default: 0 0)" in text and "(default: 800x600)" in text
+    assert "0.0x0.0" not in text

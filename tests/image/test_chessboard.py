@@ -202,3 +202,12 @@ def test_a_smaller_board_option_on_a_real_view():
     view = bc.find_chessboard(REAL / "img_para_002.pgm", board=(6, 4), method="sb",
                               check_extent=False)
     assert board_extent(REAL / "img_para_002.pgm", view) == (6, 8)
+
+
+def test_a_none_from_find_chessboard_is_named_in_the_views():
+    views, _ = bc.simulate_views(n_views=2, rng=0)
+    with pytest.raises(TypeError, match=r"views\[1\] is NoneType, not a BoardView \(find_"
+                                        r"chessboard returns None for an image where it finds "
+                                        r"no whole board: leave that image out\); 2 of the 4 "
+                                        r"views are not: indices 1, 3"):
+        bc.calibrate_camera([views[0], None, views[1], None])
