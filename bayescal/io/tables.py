@@ -296,13 +296,8 @@ def _read_npz(path, required, optional):
                   {k: v for k, v in scalars.items() if k in optional or k in required})
     for c, a in cols.items():
         sigma = _sd_unit(c)
-        small = np.flatnonzero((a > 0) & (a < MIN_SD)) if sigma else []
-        if len(small):
-            print(f"bayescal: warning: {path}, array '{c}': {len(small)} standard deviation(s) "
-                  f"below {MIN_SD:g} (index {', '.join(map(str, small[:5]))}): a relative error "
-                  f"times a coordinate of ~0; read as {MIN_SD:g} (that coordinate known)",
-                  file=sys.stderr)
-            a[small] = MIN_SD
+        if sigma:
+            _floor_npz(path, c, a)
         bad = np.isnan(a) | (np.isinf(a) if not sigma else (a < MIN_SD))
         if np.any(bad):
             k = int(np.argmax(bad))
@@ -310,6 +305,17 @@ def _read_npz(path, required, optional):
                     if sigma else "a finite number")
             raise table.error(k, c, f"{_fmt(float(a[k]))} is not allowed; expected {what}")
     return table
+
+
+def _floor_npz(path, column, a):
+    """Read the sds of ``a`` below :data:`MIN_SD` as it, with a warning (NPZ)."""
+    small = np.flatnonzero((a > 0) & (a < MIN_SD))
+    if len(small):
+        print(f"bayescal: warning: {path}, array '{column}': {len(small)} standard deviation(s) "
+              f"below {MIN_SD:g} (index {', '.join(map(str, small[:5]))}): a relative error "
+              f"times a coordinate of ~0; read as {MIN_SD:g} (that coordinate known)",
+              file=sys.stderr)
+        a[small] = MIN_SD
 
 
 def read_table(path, *, required, optional=()):

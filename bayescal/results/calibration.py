@@ -46,10 +46,12 @@ from ..errors import BayescalError, InvalidValueError, MissingFileError, OutputE
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
 from ..sensor.pose import POSE_NAMES, LaserPose, as_pose_array
 from ..stats.identifiability import (
+    PRIOR_DOMINATED_RATIO,
     IdentifiabilityReport,
     covariance_8_from_identifiable,
     identifiability_report,
     identifiable_to_paper_jacobian,
+    prior_dominated,
 )
 from .reconstruction import LinearReconstruction, linear_reconstruction
 
@@ -281,28 +283,27 @@ class CalibrationResult:
             sd = np.where(sd > 0, sd, np.nan)
             return self._covariance / np.outer(sd, sd)
 
-    def summary_rows(self, *, prior=None, ratio_limit=0.5):
+    def summary_rows(self, *, prior=None, ratio_limit=PRIOR_DOMINATED_RATIO):
         """One dict per paper parameter: ``name, mean, sd, q05, q95, prior_dominated``.
 
-        ``q05``/``q95`` is the normal 90 % interval. ``prior_dominated`` marks
-        parameters in a near-null direction of the data and, with ``prior``
-        (``{name: frozen distribution}``), those whose sd exceeds
-        ``ratio_limit`` x the prior sd (then ``prior_sd`` and ``sd_ratio`` are
-        added).
+        ``q05``/``q95`` is the normal 90 % interval. ``prior_dominated`` by the rule of
+        :func:`~bayescal.stats.identifiability.prior_dominated`: ``phi``, ``alpha_u``,
+        ``alpha_v``; with ``prior`` (``{name: frozen distribution}``; then ``prior_sd``
+        and ``sd_ratio`` are added) any whose sd exceeds ``ratio_limit`` x the prior sd;
+        without, any in a near-null direction of the data.
         """
-        flagged = set()
-        for nd in getattr(self.identifiability, "null_directions", []) or []:
-            flagged.update(nd.get("components", {}))
+        null = getattr(self.identifiability, "null_directions", []) or []
         rows = []
         for name, v, s in zip(PARAM_NAMES, self.params.to_array(), self.std, strict=True):
             row = {"name": name, "mean": float(v), "sd": float(s), "q05": float(v - Z90 * s),
-                   "q95": float(v + Z90 * s), "prior_dominated": name in flagged}
+                   "q95": float(v + Z90 * s)}
+            ratio = None
             if prior is not None and name in prior:
                 psd = float(prior[name].std())
                 row["prior_sd"] = psd
-                row["sd_ratio"] = s / psd if psd > 0 else float("nan")
-                row["prior_dominated"] = bool(row["prior_dominated"]
-                                              or row["sd_ratio"] > ratio_limit)
+                row["sd_ratio"] = ratio = s / psd if psd > 0 else float("nan")
+            scaled = None if ratio is None else ratio * PRIOR_DOMINATED_RATIO / ratio_limit
+            row["prior_dominated"] = prior_dominated(name, scaled, null)
             rows.append(row)
         return rows
 

@@ -583,7 +583,8 @@ def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
 
 
 def test_result_rows_flag_prior_dominated_parameters():
-    """sd_ratio > PRIOR_DOMINATED_RATIO, or a near-null direction, marks a parameter."""
+    """phi, alpha_u, alpha_v and sd_ratio > PRIOR_DOMINATED_RATIO mark a parameter; with a
+    prior a near-null direction of the data alone does not (phi's here), without one it does."""
     from bayescal.likelihood.priors import default_prior
     from bayescal.report.report import parameter_rows
     from bayescal.results.calibration import CalibrationResult, identifiability_report
@@ -601,7 +602,13 @@ def test_result_rows_flag_prior_dominated_parameters():
         identifiability=identifiability_report(J, bc.PARAM_NAMES))
     rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
     flagged = sorted(n for n, r in rows.items() if r["prior_dominated"])
-    assert flagged == ["beta", "phi", "xi"]
+    assert flagged == ["alpha_u", "alpha_v", "beta", "phi", "xi"]
+    J[:, 7] = 0.0                                       # beta too: no information
+    res.identifiability = identifiability_report(J, bc.PARAM_NAMES)
+    rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
+    assert not rows["h"]["prior_dominated"]             # ratio 0.4: the priors do not decide
+    no_prior = {r["name"]: r["prior_dominated"] for r in parameter_rows(res)}
+    assert sorted(n for n, f in no_prior.items() if f) == ["alpha_u", "alpha_v", "beta", "phi"]
     np.testing.assert_allclose(rows["h"]["sd_ratio"], 0.4, rtol=1e-12)
     np.testing.assert_allclose(rows["u0"]["q95"] - rows["u0"]["q05"], 2 * 1.6448536 * sd[4],
                                rtol=1e-7)
