@@ -41,7 +41,7 @@ def _wxh(size):
 
 
 def _file_line(table):
-    return f"{table.path} (its '# image_size' line)"
+    return f"{table.path} (image_size line)"
 
 
 def agreed_image_size(option, data=None, camera=None):

@@ -5,7 +5,8 @@ Both result objects unpack as ``mean, covariance``: :class:`Reconstruction`
 (Monte-Carlo draws under the posterior) and :class:`LinearReconstruction`
 (first-order propagation). A :class:`Reconstructor` is made once per calibration
 (``result.reconstructor()``) and then reconstructs a frame of pixels in a few
-milliseconds: the parameter covariance in the seven identifiable coordinates
+milliseconds where its first-order path holds: the parameter covariance in the seven
+identifiable coordinates
 propagated through the analytic Jacobian of the triangulation, plus the pixel
 noise through its pixel Jacobian. The identifiable coordinates matter: the
 ``alpha``-``xi``-``phi`` ridge of the paper's parameters is curved, and a

@@ -58,7 +58,7 @@ def test_pixels_of_another_image_size_are_refused(room, capsys):
     big = _csv(root / "big.csv", ["u", "v"], ds.pixels * 1.6, (1280, 1024))
     rc, cap = _main(["reconstruct", big, "--run", root / "cal", "--out", root / "r1"], capsys)
     assert rc == 2 and not (root / "r1").exists()
-    assert "big.csv (its '# image_size' line): pixels of a 1280x1024 image, but the run" in cap.err
+    assert "big.csv (image_size line): pixels of a 1280x1024 image, but the run" in cap.err
     assert "was calibrated on 800x600 images" in cap.err
 
 
