@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import UsageError
 
 __all__ = ["agreed_image_size", "frame_image_size", "image_frame", "truth_for", "true_points",
-           "plain_pixel_noise", "say_pixel_noise", "frame_noise", "FRAME_IMAGE_SUFFIXES",
+           "plain_pixel_noise", "say_pixel_noise", "frame_noise", "quiet_median",
+           "FRAME_IMAGE_SUFFIXES",
            "IMAGE_TRUTH_NOTE"]
 
 #: image files ``reconstruct`` runs through the laser extractor (the formats ``extract`` and
@@ -255,3 +256,11 @@ def frame_noise(job, pixel_cov):
     if pixel_cov is None and job.sigma_px is not None and hasattr(job.result, "param_samples"):
         return job.sigma_px ** 2 * np.eye(2)
     return pixel_cov
+
+
+def quiet_median(values):
+    """The median of the finite values, NaN without any (and without numpy's warning: the
+    rows that missed the cone are reported on their own)."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else float("nan")

@@ -447,7 +447,7 @@ def run_reconstruct(job, folder):
         folder.add(rec.save(out / f"{name}.ply"))
         sd = np.sqrt(np.maximum(np.diagonal(rec.covariance, axis1=1, axis2=2), 0))
         rows.append((str(path), len(pixels), int((~rec.valid).sum()),
-                     float(np.nanmedian(np.linalg.norm(sd, axis=1))), seconds, f"{name}.ply"))
+                     mt.quiet_median(np.linalg.norm(sd, axis=1)), seconds, f"{name}.ply"))
     if single:
         mean, cov = rec
         folder.add(points_csv(out / "reconstruction.csv", mean, cov,
@@ -468,7 +468,7 @@ def run_reconstruct(job, folder):
     method = "bayes" if hasattr(result, "param_samples") else getattr(result, "method", "")
     print(f"reconstructed {sum(r[1] for r in rows)} pixels in {len(rows)} frame(s) with the "
           f"{method} calibration of {job.run}; median sd "
-          f"{np.nanmedian([r[3] for r in rows]):.3g} mm")
+          f"{mt.quiet_median([r[3] for r in rows]):.3g} mm")
     written = (["reconstruction.csv", "reconstruction.ply", "reconstruction.png"] if single
                else [r[5] for r in rows[:3]] + (["..."] if len(rows) > 3 else [])
                + ["frames.csv"])

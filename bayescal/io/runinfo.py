@@ -1,14 +1,14 @@
 """The record of a calibration run: ``run.json`` beside the result file.
 
-A ``bayescal calibrate`` output folder holds the result object (``result.json``
-for the least squares, :meth:`~bayescal.CalibrationResult.save`, or
-``posterior.npz`` for the Bayesian method, :meth:`~bayescal.Posterior.save`)
-and ``run.json``: the inputs, the noise settings and where they came from, the
-image size and where it came from (``reconstruct`` refuses pixels of another size), the
-seed, the command line, whether the outlier mixture was on and, for a floor-plan run (``--walls``), the plan itself (``"plan"``: wall segments
-and sds, :func:`bayescal.io.planfile.plan_record`) (format ``"bayescal-run"``,
-versioned). ``bayescal reconstruct`` and ``bayescal report`` load the result
-object through :func:`load_run`.
+A ``bayescal calibrate`` output folder holds the result object (``result.json`` for the
+least squares, :meth:`~bayescal.CalibrationResult.save`, or ``posterior.npz`` for the
+Bayesian method, :meth:`~bayescal.Posterior.save`) and ``run.json``: the inputs, the noise
+settings and where they came from, the image size and where it came from (``reconstruct``
+refuses pixels of another size), the seed, the command line, whether the outlier mixture was
+on and, for a floor-plan run (``--walls``), the plan itself (``"plan"``: wall segments and
+sds, :func:`bayescal.io.planfile.plan_record`) (format ``"bayescal-run"``, versioned).
+``bayescal reconstruct`` and ``bayescal report`` load the result object through
+:func:`load_run`.
 """
 
 from __future__ import annotations

@@ -18,10 +18,12 @@ back to sampling where the two disagree (``docs/reconstruction.md``).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import stats
 
-from ..errors import InvalidValueError, MissingDependencyError
+from ..errors import BayescalWarning, InvalidValueError, MissingDependencyError
 from ..sensor.laser import triangulate_geo
 
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
@@ -35,6 +37,16 @@ SD_TOLERANCE = 0.10
 MEAN_TOLERANCE = 0.10
 
 
+def _checked_valid(valid):
+    """``valid``, after a warning when no ray of several pixels met the cone: pixels of
+    another camera or image size than the calibration's (``bayescal reconstruct`` checks)."""
+    if np.size(valid) > 1 and not np.any(valid):
+        warnings.warn(f"none of the {np.size(valid)} pixels' rays meets the laser cone: are they "
+                      "of the calibrated camera (its image size, its principal point)?",
+                      BayescalWarning, stacklevel=3)
+    return valid
+
+
 class _PointCloud:
     """What both reconstruction objects can do with their points: files and Open3D."""
 
@@ -45,12 +57,7 @@ class _PointCloud:
         """Write the points as a point cloud: binary PLY (``.ply``) or ``.npz``, with the
         covariances, the pixels and the outlier probabilities where known
         (:mod:`bayescal.io.pointcloud`); atomic, never replacing a file unless
-        ``overwrite``.
-
-        Returns
-        -------
-        pathlib.Path
-        """
+        ``overwrite``. Returns the path."""
         import pathlib
 
         from ..io.pointcloud import write_npz, write_ply
@@ -96,11 +103,10 @@ class Reconstruction(_PointCloud):
     """
 
     def __init__(self, samples, level):
-        self.samples = samples
-        self.level = level
+        self.samples, self.level = samples, level
         ok = np.all(np.isfinite(samples), axis=-1)                   # (S, M)
         n = ok.sum(axis=0)
-        self.valid = n > 0.99 * len(samples)
+        self.valid = _checked_valid(n > 0.99 * len(samples))
         s = np.where(ok[..., None], samples, 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
             self.mean = s.sum(axis=0) / n[:, None]
@@ -138,7 +144,7 @@ class LinearReconstruction(_PointCloud):
 
     def __init__(self, mean, covariance, level=0.9):
         self.mean, self.covariance, self.level = mean, covariance, level
-        self.valid = np.all(np.isfinite(mean), axis=-1)
+        self.valid = _checked_valid(np.all(np.isfinite(mean), axis=-1))
         self.samples = None
 
     @property
