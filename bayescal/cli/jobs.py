@@ -237,7 +237,7 @@ class CalibrateJob:
         ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
                         else sigma_scene_setting(o["sigma_scene"], data))
         if data is not None and method != "sequential":
-            _check_model_input(data, plan, nominal, spx, ssc)
+            _check_model_input(data, plan, nominal, spx, ssc, o["camera"])
         dups = warn_duplicates(data) if data is not None and method != "sequential" else []
         names = ("data", "points", "walls", "calibration", "calibration_laser", "nominal",
                  "truth", "camera")
@@ -316,7 +316,7 @@ def _read_plan(o):
     return plan
 
 
-def _check_model_input(data, plan, nominal, spx, ssc):
+def _check_model_input(data, plan, nominal, spx, ssc, camera=None):
     """Build the likelihood once to refuse input the model cannot use (exit 2)."""
     where = ", ".join(map(str, data.paths))
     try:
@@ -330,7 +330,7 @@ def _check_model_input(data, plan, nominal, spx, ssc):
             LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
     except (TypeError, ValueError) as exc:
         raise UsageError(f"{where}: {exc}") from None
-    check_geometry(data, center=(nominal.u0, nominal.v0))
+    mt.centred_geometry(check_geometry, data, nominal, camera)
 
 
 def _load_run(run):

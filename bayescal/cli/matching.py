@@ -21,6 +21,7 @@ from ..errors import UsageError
 
 __all__ = ["agreed_image_size", "frame_image_size", "image_frame", "truth_for", "true_points",
            "plain_pixel_noise", "say_pixel_noise", "frame_noise", "quiet_median",
+           "centred_geometry", "camera_hint",
            "FRAME_IMAGE_SUFFIXES",
            "IMAGE_TRUTH_NOTE"]
 
@@ -264,3 +265,22 @@ def quiet_median(values):
     v = np.asarray(values, float)
     v = v[np.isfinite(v)]
     return float(np.median(v)) if v.size else float("nan")
+
+
+def centred_geometry(check, data, nominal, camera):
+    """``check(data, center=principal point)``, its refusal with :func:`camera_hint`."""
+    try:
+        check(data, center=(nominal.u0, nominal.v0))
+    except UsageError as exc:
+        raise UsageError(f"{exc}{camera_hint(data, nominal, camera)}") from None
+
+
+def camera_hint(data, nominal, camera):
+    """When the principal point is a ``--camera``'s and the data file states no image size:
+    what to add to a refusal of the pixels' geometry (pixels of another camera than that one
+    give the same); else ``""``."""
+    if camera is None or data is None or data.image_size is not None:
+        return ""
+    return (f" (the principal point ({nominal.u0:.1f}, {nominal.v0:.1f}) is --camera "
+            f"{camera}'s: pixels of another camera or image size give this too; add the "
+            "data's '# image_size: WxH' line to check)")

@@ -286,8 +286,9 @@ def calibrate_result(job, choice=None):
                 else _nothing():
             return _calibrate(job, choice)
     except DegenerateInputError as exc:         # input that cannot calibrate: exit 2
-        where = f"{data.pixel_table.path}: " if data is not None else ""
-        raise UsageError(f"{where}{exc}") from None
+        hint = mt.camera_hint(data, job.nominal, job.inputs.get("camera"))
+        raise UsageError(f"{data.pixel_table.path}: {exc}{hint}" if data is not None
+                         else str(exc)) from None
 
 
 def _calibrate(job, choice):

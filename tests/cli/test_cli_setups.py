@@ -112,8 +112,14 @@ def test_an_image_frame_of_another_size_is_refused_and_pgm_is_an_image(room, cap
     assert rc == 2 and "dark.pgm: cannot extract laser pixels" in cap.err    # read as an image
 
 
-def test_plain_pixels_on_a_covariance_run_get_its_typical_noise(room, capsys):
+def test_plain_pixels_on_a_covariance_run_get_its_typical_noise(room, capsys, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    import bayescal.plotting
+
     root, ds, cov, res = room
+    monkeypatch.setattr(bayescal.plotting, "plot_reconstruction_ellipses",    # (speed only)
+                        lambda *a, **k: plt.figure(figsize=(1, 1)))
     plain = _csv(root / "plain.csv", ["u", "v"], ds.pixels, (800, 600))
     rc, cap = _main(["reconstruct", plain, "--run", root / "cal", "--out", root / "p"], capsys)
     assert rc == 0, cap.err
@@ -206,3 +212,15 @@ def test_the_report_footnote_states_the_rule_the_rows_follow():
     assert "phi, alpha_u, alpha_v always" in note and "exceeds 0.5 x its prior sd" in note
     assert "Near-null directions of the data" in note and "+1.000 beta" in note
     assert "flagged only when its sd ratio shows" in note
+
+
+def test_a_camera_of_another_size_without_the_data_size_line_is_hinted(room, capsys):
+    root, _, _, _ = room
+    lines = (root / "laser.csv").read_text().splitlines()
+    (root / "nosize.csv").write_text("\n".join(lines[1:]) + "\n")     # no image_size line
+    cam = _camera(root / "camera2.json")
+    rc, cap = _main(["calibrate", root / "nosize.csv", "--camera", cam, "--out", root / "o6",
+                     "--no-progress"], capsys)
+    assert rc == 2 and not (root / "o6").exists()
+    assert "degrees of azimuth around the principal point" in cap.err
+    assert "camera2.json's: pixels of another camera or image size give this too" in cap.err
