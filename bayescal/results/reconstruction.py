@@ -42,8 +42,7 @@ def _checked_valid(valid):
     another camera or image size than the calibration's (``bayescal reconstruct`` checks)."""
     if np.size(valid) > 1 and not np.any(valid):
         warnings.warn(f"none of the {np.size(valid)} pixels' rays meets the laser cone: are they "
-                      "of the calibrated camera (its image size, its principal point)?",
-                      BayescalWarning, stacklevel=3)
+                      "of the calibrated camera (image size)?", BayescalWarning, stacklevel=3)
     return valid
 
 

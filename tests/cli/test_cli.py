@@ -297,7 +297,7 @@ def test_report_rebuilds_from_a_run(seq_run, sim, tmp_path):
     md = _check_report(tmp_path / "rep")
     assert "truth" in md        # the run recorded its --truth file
     r = run("report", folder, "--out", "rep", cwd=tmp_path)
-    assert r.returncode == 2 and "not empty" in r.stderr
+    assert r.returncode == 2 and "holds an earlier bayescal run; pass --force" in r.stderr
 
 
 @pytest.fixture(scope="module")

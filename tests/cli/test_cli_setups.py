@@ -224,3 +224,15 @@ def test_a_camera_of_another_size_without_the_data_size_line_is_hinted(room, cap
     assert rc == 2 and not (root / "o6").exists()
     assert "degrees of azimuth around the principal point" in cap.err
     assert "camera2.json's: pixels of another camera or image size give this too" in cap.err
+
+
+def test_the_licence_is_an_spdx_string_for_a_setuptools_that_takes_it():
+    # setuptools >= 77 deprecates the table form ({ text = "MIT" }): pip printed its warning
+    # three times per install
+    import pathlib
+    import re
+
+    text = (pathlib.Path(__file__).resolve().parents[2] / "pyproject.toml").read_text()
+    assert re.search(r'^license = "MIT"$', text, re.M)
+    need = re.search(r'requires = \["setuptools>=(\d+)', text)
+    assert need and int(need.group(1)) >= 77
