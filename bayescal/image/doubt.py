@@ -20,7 +20,7 @@ from ..errors import ExtractionError
 from .peak import bilinear
 from .ring import circle_fit
 
-__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
+__all__ = ["DISC_LIT", "mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
            "is_white", "ADVICE",
            "COLOUR_RATIO"]
 
@@ -28,11 +28,19 @@ __all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour"
 #: channel is at most COLOUR_RATIO of its height in the laser's channel, or it is no laser
 #: of that colour (red lasers of three renderers: 0.06-0.18 over 22 images; a white rail
 #: returned as the ring in red images without a laser: 0.93-1.38 over 6)
-COLOUR_RATIO = 0.5
+COLOUR_RATIO = 0.75
 
 #: what to try when an extraction is implausible (the command line says it with its options)
 ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
           "image (center=(u, v)), or the laser's colour channel (channel=...)")
+
+
+#: a mirror's image is lit inside, not only at its edge: the median grey level of the disc
+#: between 0.4 and 0.85 of its radius (over the image's dark level) is at least DISC_LIT
+#: of the 90th percentile at its rim (0.85-1.0). Measured (docs/images.md): 0.64-1.31 on
+#: the mirror images of three renderers and the two lit real frames; 0.00-0.02 where a
+#: bright laser ring in a dark real frame filled to a disc
+DISC_LIT = 0.25
 
 
 def mirror_disc(raw):
@@ -60,6 +68,13 @@ def mirror_disc(raw):
         return None
     c, R, res = circle_fit(np.column_stack([uu, vv]) * step + (step - 1) / 2.0)
     if not np.all(np.isfinite(c)) or np.median(np.abs(res)) > 0.05 * R:
+        return None
+    # lit inside, not only at its edge: a bright ring in a dark frame fills to a disc too
+    vg, ug = np.mgrid[:small.shape[0], :small.shape[1]] * step + (step - 1) / 2.0
+    rr = np.hypot(ug - c[0], vg - c[1]) / R
+    inner, rim = small[(rr > 0.4) & (rr < 0.85)], small[(rr >= 0.85) & (rr < 1.0)]
+    if len(inner) < 20 or len(rim) < 20 or \
+            np.median(inner) - lo < DISC_LIT * (np.quantile(rim, 0.9) - lo):
         return None
     return c, R
 
@@ -190,10 +205,21 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
                               f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)
 
 
+#: the ridge's light in a channel is its mean over the samples within COLOUR_CORE px of the
+#: point along the ray, over the lower of its two flanks (the means of the samples
+#: COLOUR_FLANK px either side): its area, not its peak. A colour image stored with its
+#: chroma at reduced resolution (JPEG, a camera's video stream) or demosaiced keeps a thin
+#: stripe's middle pixel in every channel, the laser's colour spread to its sides; over the
+#: stripe and those sides the other channels' share is the light's own (real red rings:
+#: 0.47-0.53 at the peak pixel, 0.31-0.34 over +-4 px; docs/images.md)
+COLOUR_CORE = 4
+COLOUR_FLANK = (6, 7, 8)
+
+
 def _ridge_heights(gray, center, pixels):
-    """Height (grey levels) of a ridge at each of ``pixels`` (N, 2) over the lower of its two
-    flanks (the means of the samples 3-5 px either side along the ray from ``center``), and
-    the value at the pixel."""
+    """Light (grey levels per px) of a ridge at each of ``pixels`` (N, 2) over the lower of
+    its two flanks along the ray from ``center`` (:data:`COLOUR_CORE`,
+    :data:`COLOUR_FLANK`), and the value at the pixel."""
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
@@ -202,9 +228,9 @@ def _ridge_heights(gray, center, pixels):
         q = center + e * rr[:, None]
         return bilinear(gray, q[:, 0], q[:, 1])[0]
 
-    flanks = [np.mean([at(r + sgn * s) for s in (3, 4, 5)], axis=0) for sgn in (-1, 1)]
-    peak = at(r)
-    return peak - np.minimum(*flanks), peak
+    flanks = [np.mean([at(r + sgn * s) for s in COLOUR_FLANK], axis=0) for sgn in (-1, 1)]
+    core = np.mean([at(r + s) for s in range(-COLOUR_CORE, COLOUR_CORE + 1)], axis=0)
+    return core - np.minimum(*flanks), at(r)
 
 
 def _grey(image, img, channel):

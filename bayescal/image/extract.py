@@ -229,8 +229,10 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
-        check_ring(lp.flagged, cc, RR, mirror=mirror, expected=radius, closure=cand.closure,
-                   gains=gains)
+        # a user's hint outranks the mirror's disc (a fisheye's ring need not sit in it)
+        hinted = center is not None or radius is not None
+        check_ring(lp.flagged, cc, RR, mirror=None if hinted else mirror, expected=radius,
+                   closure=cand.closure, gains=gains)
         check_colour(image, background, channel, lp.pixels[ok], lp.center)
     return lp
 

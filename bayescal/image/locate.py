@@ -102,11 +102,12 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         off[np.abs(pol.radii[None, :] - pol.radii[path][:, None]) <= 8] = 0.0
         gains = (gain, ring_path(off)[2])
     # the highest ridge sample within 2 px of the path (the path moves in whole steps)
-    best = ridge_near(pol, path, 2)
+    best = ridge_near(pol, path, 2, plateau=free >= PATH_CAP)
     # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
     # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
     z = pol.score[np.arange(n), path]
-    model, _ = ring_model(pol.phi, pol.radii[path], (z > 3).astype(float))
+    capped = free[np.arange(n), path] >= PATH_CAP        # there the crest, not the path
+    model, _ = ring_model(pol.phi, pol.radii[np.where(capped, best, path)], (z > 3).astype(float))
     stray = np.abs(pol.radii[best] - model) > 2.0
     if np.any(stray):
         near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
@@ -147,9 +148,15 @@ def ring_candidates(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, ru
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
                       margin=1 if sig is not raw else BLOB_MARGIN)
     c0, r_max, mirror, band0 = _start(sig, raw, sat, center, radius, highpass_px)
-    pol, _, _, _, gains = _locate(sig, blobs, c0, r_max, n=360, highpass_px=highpass_px,
-                                  r_band=band0, runner_up=runner_up)
+    pol, k0, _, _, gains = _locate(sig, blobs, c0, r_max, n=360, highpass_px=highpass_px,
+                                   r_band=band0, runner_up=runner_up)
     priors = [p for p in ring_priors(pol) if np.hypot(*(p[0] - c0)) < 0.5 * p[1]]
+    # the first pass's own path: where the ring is off the profiles' centre (a fisheye's
+    # ring, an off-centre camera), it crosses many radii and shares none with many azimuths
+    own = _path_circle(pol, k0)
+    if own is not None and all(np.hypot(*(own[0] - p[0])) + abs(own[1] - p[1]) > 3.0
+                               for p in priors):
+        priors.append(own)
     args = dict(c0=c0, r_max=r_max, band0=band0, center=center, n_azimuth=n_azimuth,
                 highpass_px=highpass_px)
     if not priors:
@@ -160,6 +167,20 @@ def ring_candidates(sig, raw, sat, center, radius, *, n_azimuth, highpass_px, ru
                                  for p in priors):
         out.append(_second_pass(sig, blobs, other, **args))
     return out, gains, mirror
+
+
+def _path_circle(pol, k, *, z_min=3.0):
+    """The circle (centre, radius, sd) through a path's samples ``k`` (n,) that score
+    ``z_min`` or more; None if fewer than a quarter of the azimuths do."""
+    z = pol.free[np.arange(len(k)), k]
+    if np.count_nonzero(z >= z_min) < 0.25 * len(k):
+        return None
+    r = pol.radii[k]
+    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
+    c, R, res = circle_fit(pts[z >= z_min])
+    if not np.isfinite(R):
+        return None
+    return c, R, 1.4826 * float(np.median(np.abs(res - np.median(res))))
 
 
 def _beside(cand, *, gap=4.0, z_min=3.0):

@@ -91,12 +91,29 @@ def _local_sd(x, valid, *, block=(8, 32)):
     return np.maximum(s, 1e-9 + 1e-6 * fill)
 
 
-def ridge_near(pol, k, half):
+def ridge_near(pol, k, half, *, plateau=None, reach=8):
     """Per profile, the index of the highest high-passed sample within ``half`` samples of
-    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5)."""
+    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5).
+
+    ``plateau`` (n, K) bool: samples a path cannot tell apart (its score capped); where
+    ``k`` lies on a run of them, the window extends over that run (up to ``reach`` samples
+    each side). A bright stripe scores past the cap over several px: a path through it is
+    free to cut across the run, and its crest may lie farther than ``half`` from it."""
     K = len(pol.radii)
-    cand = np.clip(np.asarray(k)[:, None] + np.arange(-half, half + 1)[None], 2, K - 3)
-    return cand[np.arange(len(cand)), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+    k = np.asarray(k)
+    lo = hi = np.zeros(len(k), int)
+    if plateau is not None:
+        j = np.arange(1, reach + 1)[None]
+        rows = np.arange(len(k))[:, None]
+        run = [np.cumprod(plateau[rows, np.clip(k[:, None] + sgn * j, 0, K - 1)], axis=1)
+               for sgn in (-1, 1)]
+        on = plateau[np.arange(len(k)), k]
+        lo, hi = (np.where(on, r.sum(axis=1), 0) for r in run)
+    offs = np.arange(-half - reach, half + reach + 1)[None]
+    cand = np.clip(k[:, None] + offs, 2, K - 3)
+    inside = (offs >= -half - lo[:, None]) & (offs <= half + hi[:, None])
+    vals = np.where(inside, np.take_along_axis(pol.high, cand, 1), -np.inf)
+    return cand[np.arange(len(cand)), np.argmax(vals, axis=1)]
 
 
 def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
