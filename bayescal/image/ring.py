@@ -17,11 +17,16 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ridge_near", "ring_path", "circle_fit", "ring_model",
+__all__ = ["PolarImage", "polar_image", "ridge_near", "ridge_crest", "ring_path", "circle_fit", "ring_model",
            "ring_priors", "ring_curve"]
 
 #: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
 PATH_CAP = 8.0
+
+#: a path's gain per azimuth for running on a capped sample of higher score than another:
+#: a tie-break, far below any step's cost (without it the path kept to a bright stripe's
+#: inner flank, 3-4 px off its crest on real frames)
+TIE = 1e-6
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -46,12 +51,9 @@ class PolarImage:
         #: azimuth offsets of the rays averaged into one profile (they share its pixels)
         self.sub = (np.arange(sub) - (sub - 1) / 2.0) * (2 * np.pi / len(phi)) / sub
         H, W = img.shape
-        self.values = 0.0
-        for d in self.sub:
-            u = self.center[0] + np.cos(phi + d)[:, None] * radii[None]
-            v = self.center[1] + np.sin(phi + d)[:, None] * radii[None]
-            vals = map_coordinates(img, [v.ravel(), u.ravel()], order=1, mode="nearest")
-            self.values = self.values + vals.reshape(u.shape) / sub
+        self.values = self.sample(img)
+        u = self.center[0] + np.cos(phi + self.sub[-1])[:, None] * radii[None]
+        v = self.center[1] + np.sin(phi + self.sub[-1])[:, None] * radii[None]
         self.valid = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
         w = max(5, int(highpass_px) | 1)
         self.base = median_filter(self.values, size=(1, w), mode="nearest")
@@ -62,6 +64,25 @@ class PolarImage:
         # there is less than a pixel of new evidence, and a blob would pass for a ring
         arc = np.minimum(1.0, radii * (2 * np.pi / len(phi)))
         self.score = np.where(self.valid, smooth / self.scale, 0.0) * arc[None, :]
+
+    def sample(self, image):
+        """``image`` (H, W) along the profiles (n, K): bilinear, each sample the mean of the
+        profile's rays."""
+        out = 0.0
+        for d in self.sub:
+            u = self.center[0] + np.cos(self.phi + d)[:, None] * self.radii[None]
+            v = self.center[1] + np.sin(self.phi + d)[:, None] * self.radii[None]
+            vals = map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="nearest")
+            out = out + vals.reshape(u.shape) / len(self.sub)
+        return out
+
+    def sample_mask(self, mask):
+        """A boolean image ``mask`` (H, W) at the profiles' samples (n, K), nearest pixel."""
+        u = self.center[0] + np.cos(self.phi)[:, None] * self.radii[None]
+        v = self.center[1] + np.sin(self.phi)[:, None] * self.radii[None]
+        H, W = mask.shape
+        return mask[np.clip(np.rint(v).astype(int), 0, H - 1),
+                    np.clip(np.rint(u).astype(int), 0, W - 1)]
 
 
 def _local_sd(x, valid, *, block=(8, 32)):
@@ -91,29 +112,29 @@ def _local_sd(x, valid, *, block=(8, 32)):
     return np.maximum(s, 1e-9 + 1e-6 * fill)
 
 
-def ridge_near(pol, k, half, *, plateau=None, reach=8):
+def ridge_near(pol, k, half):
     """Per profile, the index of the highest high-passed sample within ``half`` samples of
-    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5).
-
-    ``plateau`` (n, K) bool: samples a path cannot tell apart (its score capped); where
-    ``k`` lies on a run of them, the window extends over that run (up to ``reach`` samples
-    each side). A bright stripe scores past the cap over several px: a path through it is
-    free to cut across the run, and its crest may lie farther than ``half`` from it."""
+    index ``k`` (n,), kept 2 samples inside the radial grid (the peak fit needs 5)."""
     K = len(pol.radii)
-    k = np.asarray(k)
-    lo = hi = np.zeros(len(k), int)
-    if plateau is not None:
-        j = np.arange(1, reach + 1)[None]
-        rows = np.arange(len(k))[:, None]
-        run = [np.cumprod(plateau[rows, np.clip(k[:, None] + sgn * j, 0, K - 1)], axis=1)
-               for sgn in (-1, 1)]
-        on = plateau[np.arange(len(k)), k]
-        lo, hi = (np.where(on, r.sum(axis=1), 0) for r in run)
-    offs = np.arange(-half - reach, half + reach + 1)[None]
-    cand = np.clip(k[:, None] + offs, 2, K - 3)
-    inside = (offs >= -half - lo[:, None]) & (offs <= half + hi[:, None])
-    vals = np.where(inside, np.take_along_axis(pol.high, cand, 1), -np.inf)
-    return cand[np.arange(len(cand)), np.argmax(vals, axis=1)]
+    cand = np.clip(np.asarray(k)[:, None] + np.arange(-half, half + 1)[None], 2, K - 3)
+    return cand[np.arange(len(cand)), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
+
+
+def ridge_crest(pol, k, *, reach=8):
+    """Per profile, the sample reached from index ``k`` (n,) by climbing the high-passed
+    profile uphill (at most ``reach`` samples): the crest of the ridge the path runs on.
+    A bright stripe scores past the path's cap over several px, where the path is free to
+    run on its flank."""
+    K = len(pol.radii)
+    k = np.clip(np.asarray(k).copy(), 1, K - 2)
+    rows = np.arange(len(k))
+    for _ in range(int(reach)):
+        h = pol.high[rows[:, None], k[:, None] + np.arange(-1, 2)[None]]
+        step = np.argmax(h, axis=1) - 1
+        if not step.any():
+            break
+        k = np.clip(k + step, 1, K - 2)
+    return k
 
 
 def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
@@ -127,12 +148,14 @@ def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
     return PolarImage(img, center, phi, radii, highpass_px)
 
 
-def ring_path(score, *, cap=None, jump=2, penalty=0.5):
+def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
     """The closed ridge through ``score`` (n azimuths x K radii) by dynamic programming.
 
     The path takes one radius index per azimuth, moves at most ``jump`` indices between
     neighbouring azimuths at a cost of ``penalty`` per index, and maximises the sum of
-    ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`).
+    ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`);
+    ties between capped samples go to the higher ``tie`` (default ``score``), by at most
+    :data:`TIE` per azimuth.
     Closure: the recursion runs over two
     laps and the path is read off the middle lap, far from both ends.
 
@@ -147,7 +170,11 @@ def ring_path(score, *, cap=None, jump=2, penalty=0.5):
         Mean capped score per azimuth along the path, net of its step penalties.
     """
     n, K = score.shape
-    S = np.minimum(score, PATH_CAP if cap is None else cap)
+    c = PATH_CAP if cap is None else cap
+    # ties (a stripe past the cap over several px) broken toward the higher score, not the
+    # first index: a path on such a run keeps to its crest, not its inner flank
+    t = score if tie is None else tie
+    S = np.minimum(score, c) + TIE * np.clip(t - c, 0.0, 1e3) / 1e3
     offs = np.arange(-jump, jump + 1)
     pen = penalty * np.abs(offs)
     buf = np.empty((len(offs), K))
