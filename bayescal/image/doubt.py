@@ -20,9 +20,9 @@ from ..errors import ExtractionError
 from .peak import bilinear
 from .ring import circle_fit
 
-__all__ = ["DISC_LIT", "LEAD", "PATH_SNR", "mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
-           "is_white", "ADVICE",
-           "COLOUR_RATIO"]
+__all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
+           "is_white", "ADVICE", "COLOUR_RATIO", "COLOUR_CORE", "COLOUR_FLANK", "DISC_LIT", "LEAD",
+           "PATH_SNR"]
 
 #: a laser lives in one colour channel: the ring's median height in the brightest other
 #: channel is at most COLOUR_RATIO of its height in the laser's channel, or it is no laser
@@ -271,14 +271,14 @@ def _ridge_heights(gray, center, pixels):
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
-
-    def at(rr):
-        q = center + e * rr[:, None]
-        return bilinear(gray, q[:, 0], q[:, 1])[0]
-
-    flanks = [np.mean([at(r + sgn * s) for s in COLOUR_FLANK], axis=0) for sgn in (-1, 1)]
-    core = np.mean([at(r + s) for s in range(-COLOUR_CORE, COLOUR_CORE + 1)], axis=0)
-    return core - np.minimum(*flanks), at(r)
+    fl = np.asarray(COLOUR_FLANK, float)
+    core = np.arange(-COLOUR_CORE, COLOUR_CORE + 1, dtype=float)
+    offs = np.concatenate([-fl, fl, core])                        # all samples at once
+    q = center + e[:, None, :] * (r[:, None] + offs[None, :])[..., None]
+    v = bilinear(gray, q[..., 0], q[..., 1])[0]                   # (N, S)
+    m = len(fl)
+    low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
+    return v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]
 
 
 def _grey(image, img, channel):

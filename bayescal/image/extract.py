@@ -11,15 +11,13 @@ flagged by the ring's consistency), and doubts what it found
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from .._validation import check_positive
 from ..errors import InvalidValueError
 from .doubt import check_colour, check_ring, colour_heights, is_white
 from .locate import ring_candidates
-from .measure import OFFSET_SD, LaserPixels, _measure, laser_signal, measure_ring
+from .measure import OFFSET_SD, LaserPixels, laser_signal, measure_polar, measure_ring
 from .read import read_image
 from .ring import circle_fit
 
@@ -122,10 +120,11 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
                                            highpass_px=highpass_px, runner_up=check)
     kw = dict(min_snr=min_snr, gate_px=gate_px, along_sd=along_sd, var_floor=var_floor,
               highpass_px=highpass_px)
-    lp, cand = _choose(cands, signal, colour=lambda px, c: colour_heights(
+    cand = _choose(cands, signal, colour=lambda px, c: colour_heights(
         image, background, channel, px, c, min_points=6), **kw)
+    # the chosen ring measured afresh: the same points as measure_ring gives its path
     lp = measure_ring(signal, cand.center, cand.radii, model=cand.model, offset_sd=offset_sd,
-                      **kw) if lp is None else replace(lp, offset_sd=offset_sd)
+                      **kw)
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
@@ -141,9 +140,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
 
 
 def _choose(cands, signal, *, colour=None, **kw):
-    """The candidate ring whose points the extractor trusts most, and its points (flagged by
-    every gate), or None for the points when there is one candidate only. Each candidate in
-    turn challenges the best so far (at first the circle most azimuths share): it wins if it
+    """The candidate ring whose points the extractor trusts most (measured on its own
+    profiles, :func:`~bayescal.image.measure.measure_polar`). Each candidate in turn
+    challenges the best so far (at first the circle most azimuths share): it wins if it
     runs apart from it (1.5 px or more away over a tenth of its azimuths or more) and keeps
     a larger fraction of its azimuths by more than :data:`CHOICE_MARGIN` (the strict
     off-curve gate's flags left out). In a colour image (``colour(pixels, center)``: the
@@ -151,10 +150,11 @@ def _choose(cands, signal, *, colour=None, **kw):
     run apart, the one whose points there are the laser's colour wins over one whose points
     are white, whatever the fractions."""
     if len(cands) == 1:
-        return None, cands[0]
+        return cands[0]
     best = None
+    kw = {k: v for k, v in kw.items() if k != "highpass_px"}
     for cand in cands:
-        lp, gates = _measure(signal, cand.center, cand.radii, model=cand.model, **kw)
+        lp, gates = measure_polar(signal, cand.pol, cand.k, cand.model, cand.on_blob, **kw)
         if best is None:
             best = lp, cand, gates
             continue
@@ -170,8 +170,7 @@ def _choose(cands, signal, *, colour=None, **kw):
             lead = (lead and not (w and w_b is False)) or (w is False and w_b)
         if lead:
             best = lp, cand, gates
-    lp, cand, gates = best
-    return replace(lp, flagged=lp.flagged | gates["astray"]), cand
+    return best[1]
 
 
 #: file suffixes read as images (a reconstruction frame given as an image is extracted)

@@ -89,9 +89,9 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
     # the cost comes off the capped score: a ridge scoring past the cap would otherwise pay
     # for its detour out of its excess (a rail 20 px off the ring over a quarter of it,
     # scoring 10-30 sds, tied with the ring's capped 8)
-    path, closure, _ = ring_path(pol.score if prior is None else
-                                 np.minimum(free, PATH_CAP) - PRIOR_SLOPE * far[None, :],
-                                 tie=free)
+    path, closure, gain = ring_path(pol.score if prior is None else
+                                    np.minimum(free, PATH_CAP) - PRIOR_SLOPE * far[None, :],
+                                    tie=free)
     rival = None
     if runner_up:
         off = pol.score.copy()
@@ -99,6 +99,7 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
         other, other_closure, _ = ring_path(off)
         rival = RingCandidate(pol, *_peaks(pol, other, off), other_closure, on_blob)
     best, model = _peaks(pol, path, pol.score)
+    pol.gain = gain
     return pol, best, closure, on_blob, model, rival
 
 

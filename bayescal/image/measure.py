@@ -25,8 +25,8 @@ from .peak import fit_peaks, flank_baseline
 from .read import as_gray, demosaiced_blur
 from .ring import R_MIN, PolarImage, ridge_near, ring_curve, ring_model
 
-__all__ = ["LaserPixels", "LaserSignal", "laser_signal", "measure_ring", "ring_azimuths",
-           "OFFSET_SD", "BLOB_MARGIN"]
+__all__ = ["LaserPixels", "LaserSignal", "laser_signal", "measure_ring", "measure_polar",
+           "ring_azimuths", "OFFSET_SD", "BLOB_MARGIN", "MEASURE_MARGIN"]
 
 #: sd (px, per axis) of a displacement of the ring as a whole that the per-point covariances
 #: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
@@ -202,9 +202,16 @@ def _measure(signal, center, radius, *, model=None, search_px=0, highpass_px=15,
     k = np.clip(np.rint(r - r0).astype(int), 2, len(radii) - 3)
     if search_px:
         k = ridge_near(pol, k, int(search_px))
-    pol.model = ring_model(pol.phi, radii[k], np.ones(len(k)))[0] if model is None else \
-        np.asarray(model, dtype=float)
-    on_blob = pol.sample_mask(signal.blobs)
+    model = ring_model(pol.phi, radii[k], np.ones(len(k)))[0] if model is None else model
+    return measure_polar(signal, pol, k, model, pol.sample_mask(signal.blobs), **kw)
+
+
+def measure_polar(signal, pol, k, model, on_blob, **kw):
+    """The points at samples ``k`` (n,) of profiles ``pol`` already taken (a ring
+    candidate's), with the ring's ``model`` (n,) px and the blobs at the samples
+    ``on_blob`` (n, K): :func:`_measure`'s points and flags, the same wherever the
+    profiles reach :data:`MEASURE_MARGIN` px beyond the path on either side."""
+    pol.model = np.asarray(model, dtype=float)
     # where the laser's channel clips, as read (on a laser-off difference too)
     clip = None if signal.top is None else \
         (pol.sample(signal.raw) if signal.flank else pol.values) >= signal.top - 0.5

@@ -17,8 +17,8 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
-__all__ = ["PolarImage", "polar_image", "ridge_near", "ridge_crest", "ring_path", "circle_fit", "ring_model",
-           "ring_priors", "ring_curve"]
+__all__ = ["PolarImage", "polar_image", "ridge_near", "ridge_crest", "ring_path", "circle_fit",
+           "ring_model", "ring_priors", "ring_curve", "PATH_CAP", "TIE"]
 
 #: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
 PATH_CAP = 8.0
@@ -173,24 +173,21 @@ def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
     c = PATH_CAP if cap is None else cap
     # ties (a stripe past the cap over several px) broken toward the higher score, not the
     # first index: a path on such a run keeps to its crest, not its inner flank
-    t = score if tie is None else tie
-    S = np.minimum(score, c) + TIE * np.clip(t - c, 0.0, 1e3) / 1e3
+    S = np.minimum(score, c) + TIE * np.clip((score if tie is None else tie) - c, 0.0, 1e3) / 1e3
     offs = np.arange(-jump, jump + 1)
     pen = penalty * np.abs(offs)
-    buf = np.empty((len(offs), K))
     back = np.empty((2 * n, K), dtype=np.int8)
     D = S[0].copy()
     cols = np.arange(K)
+    # the running score padded with -inf: window row k holds D[k + d] for every step d
+    Dp = np.full(K + 2 * jump, -np.inf)
+    win = np.lib.stride_tricks.sliding_window_view(Dp, len(offs))
     for t in range(1, 2 * n):
-        buf.fill(-np.inf)
-        for j, d in enumerate(offs):          # buf[j, k] = D[k + d] - pen[j]
-            if d >= 0:
-                buf[j, :K - d] = D[d:] - pen[j]
-            else:
-                buf[j, -d:] = D[:K + d] - pen[j]
-        arg = np.argmax(buf, axis=0)
+        Dp[jump:jump + K] = D
+        cand = win - pen
+        arg = np.argmax(cand, axis=1)
         back[t] = arg
-        D = buf[arg, cols] + S[t % n]
+        D = cand[cols, arg] + S[t % n]
     path = np.empty(2 * n, dtype=int)
     path[-1] = int(np.argmax(D))
     for t in range(2 * n - 1, 0, -1):

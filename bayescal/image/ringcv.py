@@ -22,7 +22,8 @@ import numpy as np
 from ..errors import InvalidValueError
 from .ring import circle_fit
 
-__all__ = ["RingCV", "ring_cross_validation", "CV_BLOCK_PX", "CV_GUARD_PX", "CV_REACH_PX"]
+__all__ = ["RingCV", "ring_cross_validation", "ring_cv_line", "CV_BLOCK_PX", "CV_GUARD_PX",
+           "CV_REACH_PX", "CV_KINK", "CV_KINK_PX"]
 
 #: length of a held-out block along the ring, px: longer than the errors' correlation
 #: (neighbouring profiles 1.6-2 px apart: lag-1 0.2-0.68, lag 4 at most 0.15, measured on
@@ -185,6 +186,15 @@ def ring_cross_validation(lp, *, block_px=CV_BLOCK_PX, guard_px=CV_GUARD_PX,
     sd = np.sqrt(var + np.maximum(vhat, 0.0) * cos_psi ** 2)
     return RingCV(index=ok[keep], residual=res[keep], sd=sd[keep], block=block[keep],
                   gross_px=float(gross_px))
+
+
+def ring_cv_line(lp):
+    """One line for a report: :meth:`RingCV.summary`, or why the cross-validation was not
+    run (too few unflagged points)."""
+    try:
+        return ring_cross_validation(lp).summary()
+    except InvalidValueError as exc:
+        return f"cross-validation: not run ({exc})"
 
 
 def _wls(X, r, var, w0, iters):
