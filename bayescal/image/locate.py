@@ -15,6 +15,7 @@ import numpy as np
 from .doubt import dark_core, mirror_disc
 from .ring import (
     PATH_CAP,
+    QUANTUM_SD,
     circle_fit,
     polar_image,
     ridge_crest,
@@ -70,12 +71,13 @@ def _score_without_blobs(pol, blobs):
 
 
 def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=False,
-            prior=None):
+            prior=None, floor=0.0):
     """Polar image around ``c``, the ring's path in it (the peak sample's radius index per
     azimuth), its closure, the blob mask in polar coordinates, the path's robust model and
     (``runner_up``) the best closed path 8 px or more off it (a RingCandidate, else None)."""
     r_min = 0.0 if r_band is None else r_band[0] - highpass_px
-    pol = polar_image(sig, c, n_azimuth=n, r_max=r_max, highpass_px=highpass_px, r_min=r_min)
+    pol = polar_image(sig, c, n_azimuth=n, r_max=r_max, highpass_px=highpass_px, r_min=r_min,
+                      floor=floor)
     if r_band is not None:
         pol.score[:, (pol.radii < r_band[0]) | (pol.radii > r_band[1])] = 0.0
     on_blob = _score_without_blobs(pol, blobs)
@@ -188,9 +190,10 @@ def ring_candidates(signal, center, radius, *, n_azimuth, highpass_px, runner_up
         ``(centre, radius)`` of the mirror's image, px.
     """
     sig, blobs = signal.signal, signal.blobs
+    floor = 0.0 if signal.top is None else QUANTUM_SD
     c0, r_max, mirror, band0 = _start(signal.raw, center, radius, highpass_px)
     pol, k0, _, _, _, rival = _locate(sig, blobs, c0, r_max, n=360, highpass_px=highpass_px,
-                                      r_band=band0, runner_up=runner_up)
+                                      r_band=band0, runner_up=runner_up, floor=floor)
     priors = [p for p in ring_priors(pol) if np.hypot(*(p[0] - c0)) < 0.5 * p[1]]
     # the first pass's own path: where the ring is off the profiles' centre (a fisheye's
     # ring, an off-centre camera), it crosses many radii and shares none with many azimuths
@@ -199,7 +202,7 @@ def ring_candidates(signal, center, radius, *, n_azimuth, highpass_px, runner_up
                                for p in priors):
         priors.append(own)
     args = dict(c0=c0, r_max=r_max, band0=band0, center=center, n_azimuth=n_azimuth,
-                highpass_px=highpass_px)
+                highpass_px=highpass_px, floor=floor)
     if not priors:
         return [_second_pass(sig, blobs, None, **args)], rival, mirror
     out = [_second_pass(sig, blobs, p, **args) for p in priors]
@@ -242,7 +245,8 @@ def _beside(cand, *, gap=4.0, z_min=3.0):
     return c, R, 1.4826 * float(np.median(np.abs(res - np.median(res))))
 
 
-def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, highpass_px):
+def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, highpass_px,
+                 floor):
     """The final profiles about a circle ``prior`` (centre, radius, sd; None: about ``c0``
     over the whole band) and the ring's path through them."""
     if prior is not None:
@@ -259,5 +263,5 @@ def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, high
     r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
     pol, k, closure, on_blob, model, _ = _locate(
         sig, blobs, c, r_max, n=n, highpass_px=highpass_px, r_band=band,
-        prior=None if center is not None else (R, tol))
+        prior=None if center is not None else (R, tol), floor=floor)
     return RingCandidate(pol, k, model, closure, on_blob)

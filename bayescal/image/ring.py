@@ -18,7 +18,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
 
 __all__ = ["PolarImage", "polar_image", "ridge_near", "ridge_crest", "ring_path", "circle_fit",
-           "ring_model", "ring_priors", "ring_curve", "PATH_CAP", "TIE"]
+           "ring_model", "ring_priors", "ring_curve", "PATH_CAP", "TIE", "QUANTUM_SD"]
 
 #: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
 PATH_CAP = 8.0
@@ -27,6 +27,12 @@ PATH_CAP = 8.0
 #: a tie-break, far below any step's cost (without it the path kept to a bright stripe's
 #: inner flank, 3-4 px off its crest on real frames)
 TIE = 1e-6
+
+#: the least scale of the ridge score in an integer image, grey levels: its quantisation
+#: alone (sd 1/sqrt(12)) through the score's high-pass and 1-px smoothing (0.25-0.37 of a
+#: pixel's white noise, measured; the least taken). A frame that is black but for the ring
+#: has no spread at all: every sample the ring's light reaches scored 1e6-1e10 sds
+QUANTUM_SD = 0.25 / np.sqrt(12.0)
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -42,11 +48,12 @@ class PolarImage:
     radii : ndarray, shape (K,)
     values, base, high, score : ndarray, shape (n, K)
         Samples; their running radial median; ``values - base``; the ridge score (the
-        high-pass smoothed over 1 px and divided by its local robust sd).
+        high-pass smoothed over 1 px and divided by its local robust sd, at least
+        ``floor``).
     valid : ndarray of bool, shape (n, K)
     """
 
-    def __init__(self, img, center, phi, radii, highpass_px, sub=2):
+    def __init__(self, img, center, phi, radii, highpass_px, sub=2, floor=0.0):
         self.center, self.phi, self.radii = np.asarray(center, float), phi, radii
         #: azimuth offsets of the rays averaged into one profile (they share its pixels)
         self.sub = (np.arange(sub) - (sub - 1) / 2.0) * (2 * np.pi / len(phi)) / sub
@@ -59,7 +66,7 @@ class PolarImage:
         self.base = median_filter(self.values, size=(1, w), mode="nearest")
         self.high = np.where(self.valid, self.values - self.base, 0.0)
         smooth = gaussian_filter1d(self.high, 1.0, axis=1)
-        self.scale = _local_sd(smooth, self.valid)
+        self.scale = np.maximum(_local_sd(smooth, self.valid), floor)
         # near the centre neighbouring profiles sample the same pixels: one azimuth step
         # there is less than a pixel of new evidence, and a blob would pass for a ring
         arc = np.minimum(1.0, radii * (2 * np.pi / len(phi)))
@@ -137,15 +144,16 @@ def ridge_crest(pol, k, *, reach=8):
     return k
 
 
-def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
+def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN, floor=0.0):
     """The :class:`PolarImage` of ``img`` around ``center`` from ``r_min`` (an integer
-    offset from :data:`R_MIN`) out to ``r_max`` px."""
+    offset from :data:`R_MIN`) out to ``r_max`` px; ``floor``: the least scale of its
+    score (:data:`QUANTUM_SD` for an integer image)."""
     # mid-step azimuths: one profile in the middle of each of n equal sectors (of each
     # degree for n = 360)
     phi = np.linspace(-np.pi, np.pi, int(n_azimuth), endpoint=False) + np.pi / int(n_azimuth)
     r0 = R_MIN + max(0.0, np.floor(r_min - R_MIN))
     radii = np.arange(r0, max(float(r_max), r0 + 8.0))
-    return PolarImage(img, center, phi, radii, highpass_px)
+    return PolarImage(img, center, phi, radii, highpass_px, floor=floor)
 
 
 def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
@@ -155,7 +163,7 @@ def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
     neighbouring azimuths at a cost of ``penalty`` per index, and maximises the sum of
     ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`);
     ties between capped samples go to the higher ``tie`` (default ``score``), by at most
-    :data:`TIE` per azimuth.
+    :data:`TIE` per azimuth (a log of the excess, so that it tells scores of 1e3 from 1e9).
     Closure: the recursion runs over two
     laps and the path is read off the middle lap, far from both ends.
 
@@ -173,7 +181,8 @@ def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
     c = PATH_CAP if cap is None else cap
     # ties (a stripe past the cap over several px) broken toward the higher score, not the
     # first index: a path on such a run keeps to its crest, not its inner flank
-    S = np.minimum(score, c) + TIE * np.clip((score if tie is None else tie) - c, 0.0, 1e3) / 1e3
+    S = np.minimum(score, c) + TIE * np.log1p(np.maximum((score if tie is None else tie) - c,
+                                                          0.0)) / 64.0
     offs = np.arange(-jump, jump + 1)
     pen = penalty * np.abs(offs)
     back = np.empty((2 * n, K), dtype=np.int8)

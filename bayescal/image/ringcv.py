@@ -215,10 +215,17 @@ def _wls(X, r, var, w0, iters):
 def _kink(x, r, var, gap, reach, iters):
     """Per block middle (x: angles of the points from it, rad, (B, N)), the z-score of a
     hinge ``d |x|`` in a fit ``a + b x + c x^2 + d |x|`` through the points from ``gap`` to
-    ``reach`` rad away on either side (B,): a smooth bend is the quadratic's, a corner at
-    the middle the hinge's."""
+    ``reach`` rad away on either side (B,), in the fits' own scale: a smooth bend is the
+    quadratic's, a corner at the middle the hinge's."""
     w0 = ((np.abs(x) >= gap) & (np.abs(x) <= reach)) / var[None, :]
-    cf, cv = _wls(np.stack([np.ones_like(x), x, x ** 2, np.abs(x)], -1), r, var, w0, iters)
+    X = np.stack([np.ones_like(x), x, x ** 2, np.abs(x)], -1)
+    cf, cv = _wls(X, r, var, w0, iters)
     n = [np.sum((w0 > 0) & side, axis=1) for side in (x < 0, x > 0)]
-    z = cf[:, 3] / np.sqrt(np.maximum(cv[:, 3, 3], 1e-300))
-    return np.where((n[0] >= 4) & (n[1] >= 4), z, 0.0)
+    use = (n[0] >= 4) & (n[1] >= 4)
+    # in the fits' own scale (the median block's misfit), so that covariances stated too
+    # small or too large everywhere do not make corners of every block
+    chi = np.sum(w0 * (r[None, :] - np.einsum("bni,bi->bn", X, cf)) ** 2, axis=1) / \
+        np.maximum(n[0] + n[1] - 4, 1)
+    scale = float(np.median(chi[use])) if use.any() else 1.0
+    z = cf[:, 3] / np.sqrt(np.maximum(cv[:, 3, 3] * max(scale, 1e-12), 1e-300))
+    return np.where(use, z, 0.0)

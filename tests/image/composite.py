@@ -6,7 +6,8 @@ Measured on the eight real dark frames (profiles across the ring at the extracte
 normalised by the red peak, median over the points with a peak over 20 grey levels): the red
 stripe is a Gaussian of sd 1.47-1.56 px (with wider wings); green and blue are narrower (sd
 0.92-1.01 px) and peak at 0.44-0.56 of the red (colour interpolation of a thin stripe); the
-red peak runs from 13-43 grey levels on the faint side to 71-156 on the bright one.
+red peak runs from 13-43 grey levels on the faint side to 71-156 on the bright one; the points
+scatter 0.13-0.17 px about a smooth curve (a laser's speckle: :data:`SPECKLE`).
 
 :func:`composite_ring` draws that stripe along an ellipse (off the image's centre, a
 brightness varying around it, a gap where a mount blocks it), optionally through a Bayer
@@ -24,6 +25,18 @@ import numpy as np
 RED_SD = 1.5
 LEAK = 0.5
 LEAK_SD = 0.95
+#: speckle contrast: the real dark frames' points scatter 0.13-0.17 px about a smooth curve,
+#: a dark composite's without speckle 0.05 px, with 0.15 0.145-0.164 px (measured, 2 seeds)
+SPECKLE = 0.15
+#: the measured mean profiles across the ring (ring_002.png: offsets -6..6 px by 0.5 px,
+#: per red peak): red with its wings, green and blue narrower
+PROFILE_OFFSETS = np.arange(-6.0, 6.01, 0.5)
+PROFILE_RED = np.array([0.01, 0.01, 0.03, 0.05, 0.07, 0.11, 0.16, 0.26, 0.40, 0.58, 0.78,
+                        0.93, 1.00, 0.95, 0.79, 0.58, 0.39, 0.25, 0.17, 0.12, 0.09, 0.06,
+                        0.03, 0.00, 0.00])
+PROFILE_OTHER = np.array([0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.00, 0.02, 0.08, 0.18, 0.29,
+                          0.41, 0.46, 0.41, 0.29, 0.14, 0.03, 0.00, 0.00, 0.00, 0.00, 0.00,
+                          0.00, 0.00, 0.00])
 
 
 @dataclass
@@ -57,8 +70,8 @@ def _ellipse_frame(shape, center, axes, angle):
 
 def composite_ring(base, *, center, axes=(250.0, 230.0), angle=0.3, peak=(40.0, 150.0),
                    bright_deg=60.0, gap_deg=(86.0, 94.0), red_sd=RED_SD, leak=LEAK,
-                   leak_sd=LEAK_SD, albedo=True, bayer=False, jpeg=None, gain=1.0,
-                   noise=0.5, rng=None, n_truth=3600):
+                   leak_sd=LEAK_SD, measured=True, albedo=True, bayer=False, jpeg=None,
+                   gain=1.0, noise=0.5, speckle=SPECKLE, rng=None, n_truth=3600):
     """A thin red elliptical ring drawn onto ``base`` with a known centre line.
 
     Parameters
@@ -81,6 +94,9 @@ def composite_ring(base, *, center, axes=(250.0, 230.0), angle=0.3, peak=(40.0, 
         The red stripe's Gaussian sd (px); green and blue peak at ``leak`` of it with sd
         ``leak_sd`` (the real frames'). With ``bayer`` the stripe is drawn in red only and
         the mosaic and its demosaic make the leakage.
+    measured : bool
+        Draw the real frames' measured mean profiles (:data:`PROFILE_RED`,
+        :data:`PROFILE_OTHER`, wings included) instead of the Gaussians.
     albedo : bool
         Scale the laser by the wall's brightness in ``base`` (a lit wall reflects the laser
         as it does the light), between 0.4 and 1.6 of its median.
@@ -92,6 +108,8 @@ def composite_ring(base, *, center, axes=(250.0, 230.0), angle=0.3, peak=(40.0, 
         Factor on ``base`` (e.g. 0.05 makes a lit frame a dark one).
     noise : float
         Shot noise on the added light: sd ``sqrt(noise * light)`` grey levels.
+    speckle : float
+        Contrast (sd) of a multiplicative speckle on the laser, correlated over ~1 px.
     rng : numpy.random.Generator or int or None
     n_truth : int
         Points of the true centre line.
@@ -111,15 +129,28 @@ def composite_ring(base, *, center, axes=(250.0, 230.0), angle=0.3, peak=(40.0, 
     hidden = (deg >= gap_deg[0] % 360) & (deg <= gap_deg[1] % 360)
     amp = np.where(hidden, 0.0, amp)
     if albedo:
-        grey = img.mean(axis=2)
+        from scipy.ndimage import gaussian_filter
+
+        # the wall's reflectance as the optics see it (not the base frame's pixel noise)
+        grey = gaussian_filter(img.mean(axis=2), 1.0)
         med = np.median(grey[grey > np.percentile(grey, 50)]) if grey.max() > 0 else 1.0
         amp = amp * np.clip(grey / max(med, 1e-6), 0.4, 1.6) if med > 20 else amp
-    red = amp * np.exp(-0.5 * (d / red_sd) ** 2)
     if bayer:
+        red = amp * np.exp(-0.5 * (d / red_sd) ** 2)
         light = np.stack([red, 0.1 * red, 0.05 * red], axis=-1)
+    elif measured:
+        red = amp * np.interp(d, PROFILE_OFFSETS, PROFILE_RED, left=0.0, right=0.0)
+        other = amp * np.interp(d, PROFILE_OFFSETS, PROFILE_OTHER, left=0.0, right=0.0)
+        light = np.stack([red, other, other], axis=-1)
     else:
+        red = amp * np.exp(-0.5 * (d / red_sd) ** 2)
         other = amp * leak * np.exp(-0.5 * (d / leak_sd) ** 2)
         light = np.stack([red, other, other], axis=-1)
+    if speckle:         # a laser's speckle: multiplicative, correlated over about a pixel
+        from scipy.ndimage import gaussian_filter
+
+        sp = gaussian_filter(rng.standard_normal((H, W)), 0.8)
+        light = light * np.clip(1 + speckle * sp / sp.std(), 0.0, None)[..., None]
     light = light + rng.standard_normal(light.shape) * np.sqrt(noise * light)
     out = img + light
     if bayer:
