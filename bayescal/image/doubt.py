@@ -24,10 +24,14 @@ __all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour"
            "is_white", "ADVICE", "COLOUR_RATIO", "COLOUR_CORE", "COLOUR_FLANK", "DISC_LIT", "LEAD",
            "PATH_SNR"]
 
-#: a laser lives in one colour channel: the ring's median height in the brightest other
-#: channel is at most COLOUR_RATIO of its height in the laser's channel, or it is no laser
-#: of that colour (red lasers of three renderers: 0.06-0.18 over 22 images; a white rail
-#: returned as the ring in red images without a laser: 0.93-1.38 over 6)
+#: a laser lives in one colour channel: the ring's median light (over its lower flank,
+#: within COLOUR_CORE px of the point) in the brightest other channel is at most
+#: COLOUR_RATIO of that in the laser's channel, or it is no laser of that colour. Measured:
+#: the real red rings 0.29-0.34 (eight dark frames), 0.55 (the lit frame's faint ring),
+#: rings composited onto the second real sensor's frame 0.11-0.38, the red lasers of three
+#: renderers 0.15-0.27; renderer2's white rail returned as the ring in its red rooms without
+#: a laser 1.02-1.45 (seeds 0-2): 1.36x margins either side (docs/images.md). At the peak
+#: pixel alone the real rings reached 0.47-0.53, refused by the former rule (0.5)
 COLOUR_RATIO = 0.75
 
 #: what to try when an extraction is implausible (the command line says it with its options)
@@ -259,7 +263,8 @@ def _where(center, radius, hinted, kept):
 #: chroma at reduced resolution (JPEG, a camera's video stream) or demosaiced keeps a thin
 #: stripe's middle pixel in every channel, the laser's colour spread to its sides; over the
 #: stripe and those sides the other channels' share is the light's own (real red rings:
-#: 0.47-0.53 at the peak pixel, 0.31-0.34 over +-4 px; docs/images.md)
+#: 0.47-0.53 at the peak pixel, 0.29-0.34 over +-4 px; +-3 and +-5 px gave 0.30-0.37 and
+#: 0.30-0.34; docs/images.md)
 COLOUR_CORE = 4
 COLOUR_FLANK = (6, 7, 8)
 

@@ -213,10 +213,11 @@ def ring_candidates(signal, center, radius, *, n_azimuth, highpass_px, runner_up
     return out, rival, mirror
 
 
-def _path_circle(pol, k, *, z_min=3.0):
+def _path_circle(pol, k, *, score=None, z_min=3.0):
     """The circle (centre, radius, sd) through a path's samples ``k`` (n,) that score
-    ``z_min`` or more; None if fewer than a quarter of the azimuths do."""
-    z = pol.free[np.arange(len(k)), k]
+    ``z_min`` or more (in ``score``, default the unpenalised score); None if fewer than a
+    quarter of the azimuths do."""
+    z = (pol.free if score is None else score)[np.arange(len(k)), k]
     if np.count_nonzero(z >= z_min) < 0.25 * len(k):
         return None
     r = pol.radii[k]
@@ -233,16 +234,7 @@ def _beside(cand, *, gap=4.0, z_min=3.0):
     pol = cand.pol
     off = pol.free.copy()
     off[np.abs(pol.radii[None, :] - pol.radii[cand.k][:, None]) < gap] = 0.0
-    path = ring_path(off)[0]
-    z = off[np.arange(len(path)), path]
-    if np.count_nonzero(z >= z_min) < 0.25 * len(path):
-        return None
-    r = pol.radii[path]
-    pts = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
-    c, R, res = circle_fit(pts[z >= z_min])
-    if not np.isfinite(R):
-        return None
-    return c, R, 1.4826 * float(np.median(np.abs(res - np.median(res))))
+    return _path_circle(pol, ring_path(off)[0], score=off, z_min=z_min)
 
 
 def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, highpass_px,

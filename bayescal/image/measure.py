@@ -38,6 +38,7 @@ OFFSET_SD = 0.02
 #: within 0.5 px of the truth; 2 instead of 3 keeps 2 % more of the azimuths, measured)
 BLOB_MARGIN = 2
 
+
 @dataclass(frozen=True)
 class LaserPixels:
     """Laser centre-line pixels with their uncertainty.
