@@ -18,6 +18,7 @@ from .fit.simultaneous import calibrate_simultaneous
 from .image.chessboard import board_extent, find_chessboard
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
+from .image.ringcv import RingCV, ring_cross_validation
 from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
@@ -109,6 +110,8 @@ __all__ = [
     "extract_laser",
     "read_image",
     "LaserPixels",
+    "ring_cross_validation",
+    "RingCV",
     "BoardView",
     "board_points",
     "find_chessboard",
