@@ -135,8 +135,7 @@ def run_extract(job, folder):
                            along_sd=job.along_sd, radius=job.radius, channel=job.channel)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
         raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
-    p = folder.path
-    cv = ring_cv_line(lp)
+    p, cv = folder.path, ring_cv_line(lp)
     write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
                        image_size=job.image.shape[1::-1], extra_note=f"\n{cv}")
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
