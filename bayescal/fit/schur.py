@@ -14,8 +14,8 @@ import numpy as np
 from ..errors import InvalidValueError
 from ..sensor.laser import cone_points_geo
 
-__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "SINGULAR_FLOOR", "STALL_WINDOW",
-           "STALL_TOL"]
+__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "in_domain", "SINGULAR_FLOOR",
+           "STALL_WINDOW", "STALL_TOL"]
 
 
 class MapSolution:
@@ -85,7 +85,19 @@ def _normal_equations(lik, prior, psi, q, sig, w, u):
     return cost, A, B, C, gt, gq, R
 
 
+def in_domain(psi):
+    """Whether ``psi = (geometry, phi)`` lies where the model is defined: ``xi > 0``,
+    ``xi + phi > 0``, ``h > 0``, ``0 < beta < pi/2``. A step that leaves it is refused
+    like one that raises the cost (the damping grows until the step stays inside), so
+    no parameter walks through a bound of its domain inside the solver (an ``h`` walked
+    through zero used to end the fit in a ValueError: ``docs/robustness.md``, 4c)."""
+    xi, h, beta, phi = psi[0], psi[5], psi[6], psi[-1]
+    return bool(xi > 0 and xi + phi > 0 and h > 0 and 0 < beta < np.pi / 2)
+
+
 def _cost(lik, prior, psi, q, sig, w, u):
+    if not in_domain(psi):
+        return np.inf
     R = lik.residuals(psi[:lik.n_geo], q, sig, w)
     rp = _prior_rows(prior, psi, jacobian=False)
     c = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)

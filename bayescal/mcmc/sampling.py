@@ -35,8 +35,9 @@ import numpy as np
 from .._validation import check_positive, resolve_rng
 from ..errors import InvalidTypeError, InvalidValueError
 from ..fit.simultaneous import check_model, point_likelihood
+from ..fit.start import data_prior
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
-from ..likelihood.priors import Prior, as_prior
+from ..likelihood.priors import Prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import (
@@ -214,7 +215,9 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
     offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
-    prior = as_prior(prior, camera)
+    # no prior and no camera: the default centred on the design the data imply (the paper's
+    # sensor unless they disagree: bayescal.fit.start.data_prior, as the least squares does)
+    prior = data_prior(prior, camera, pixels, approx_points)[0]
     rng = resolve_rng(rng)
     if budget is not None and not (isinstance(budget, (int, float, np.number))
                                    and not isinstance(budget, bool) and budget >= 1):
