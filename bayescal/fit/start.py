@@ -41,13 +41,13 @@ TRIMMED_NOISE_LIMIT = 1.75
 #: the paper's image, width x height in px: its design values are the paper's sensor
 PAPER_IMAGE_SIZE = (800, 600)
 #: the data disagree with the paper's design when the principal point or the focal scale
-#: they imply lies further than this many of the default prior's sds from it (a sensor
-#: built to the design lies within 5 of its tolerances in each with probability 1 - 6e-7;
-#: the focal scale read at the design's xi is biased by xi's error, 11 % per 0.05,
-#: i.e. one sd per sd of xi, so a sensor 3 sds off in xi and alpha reads 6 sds off at
-#: worst, measured within 4.1 over 200 sensors drawn from the default prior:
-#: ``tests/fit/test_start.py``)
-DESIGN_MISMATCH_SDS = 5.0
+#: they imply lies further than this many of the default prior's sds from it. The focal
+#: scale is read at the design's xi, so an error of xi shows in it (11 % per 0.05, one
+#: alpha sd per xi sd): over 200 sensors drawn from the default prior (150 points,
+#: 1000-5000 mm, 1-5 % approximate points, fig9 or gaussian) the largest reading was 6.7
+#: sds, the 99 % quantile 4.8, the median 1.8 (``tests/fit/test_start.py`` repeats 40 of
+#: them); the 1280x1024 camera of issue 39 (280 px) reads 41
+DESIGN_MISMATCH_SDS = 8.0
 #: the repeated median's quadratic cost is spent on at most this many points
 _MEDIAN_POINTS = 400
 
