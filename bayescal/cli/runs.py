@@ -323,35 +323,21 @@ def _calibrate(job, choice):
     if not result.converged:
         return result, f"{job.method} calibration did not converge: {_located(result, data)}"
     if result.extras.get("model_misfit"):            # written, but not a success: exit 1
-        return result, f"{job.method} calibration: {_located_misfit(result, data)}"
+        return result, f"{job.method} calibration: {_located(result, data, 'misfit_message')}"
     return result, None
 
 
-def _located_misfit(result, data):
-    """The failed model check of a converged fit (``extras["model_misfit"]``), its worst rows
-    as the file's lines."""
-    from ..checks.fit import flag_misfit
-
-    text = flag_misfit(result)
-    rows = result.extras.get("failed_rows")
-    if data is None or rows is None:
-        return text
-    from ..checks.datafile import rows_to_lines
-
-    lines = ", ".join(map(str, rows_to_lines(data, rows)))
-    return (text.split(" (rows fitting worst", 1)[0]
-            + f" (input fitting worst: {data.pixel_table.path} lines {lines})")
-
-
-def _located(result, data):
-    """A result's message with the rows it names (``extras["failed_rows"]``) as file lines."""
+def _located(result, data, key=None):
+    """A result's message (or ``extras[key]``) with the rows it names
+    (``extras["failed_rows"]``) as file lines."""
     from ..checks.datafile import rows_to_lines
 
     rows = result.extras.get("failed_rows")
+    text = str(result.extras[key] if key else result.message)
     if rows is None or data is None:
-        return result.message
+        return text
     lines = ", ".join(map(str, rows_to_lines(data, rows)))
-    text = str(result.message).split(" (rows fitting worst", 1)[0]
+    text = text.split(" (rows fitting worst", 1)[0]
     return f"{text} (input fitting worst: {data.pixel_table.path} lines {lines})"
 
 

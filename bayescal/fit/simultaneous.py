@@ -25,8 +25,9 @@ import warnings
 import numpy as np
 
 from .._validation import check_positive
-from ..checks.fit import ModelMisfitWarning, NoiseCollapseError, check_noise_levels, flag_misfit
+from ..checks.fit import NoiseCollapseError, check_noise_levels
 from ..checks.inputs import check_calibration_input
+from ..checks.misfit import ModelMisfitWarning, flag_misfit
 from ..errors import InvalidTypeError, InvalidValueError, UnsupportedError
 from ..likelihood.misaligned import MisalignedLikelihood
 from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE

@@ -28,8 +28,8 @@ import warnings
 import numpy as np
 
 from .._validation import resolve_rng
-from ..checks.fit import ModelMisfitWarning
 from ..checks.inputs import DuplicateRowsWarning
+from ..checks.misfit import ModelMisfitWarning
 from ..errors import BayescalError, FitError, InputError, InvalidValueError, NotConvergedError
 from ..fit.simultaneous import calibrate_simultaneous
 from ..mcmc.sampling import sample_posterior

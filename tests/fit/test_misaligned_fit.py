@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
-from bayescal.checks.fit import ModelMisfitWarning
+from bayescal.checks.misfit import ModelMisfitWarning
 from bayescal.sensor.pose import POSE_NAMES
 
 TILT = tuple(np.radians([1.0, 0.5]))
@@ -170,3 +170,22 @@ def test_summary_says_what_the_data_determine_of_the_pose(tilted):
     text = tilted[1]["misaligned"].summary()
     assert "tilt_x" in text and "the data narrow it" in text
     assert text.count("PRIOR-DOMINATED: the data barely see it") == 2
+
+
+@pytest.mark.slow
+def test_the_shell_exits_1_on_a_failed_model_check(tmp_path, capsys):
+    """The aligned model on a tilted cone from the shell: the result, its files and report
+    written, the reason printed with the file's lines, exit 1 (docs/robustness.md, 4c)."""
+    from bayescal.cli.main import main
+
+    ds = _room(0)
+    rows = [",".join(f"{v:.9g}" for v in (*p, *a, *s))
+            for p, a, s in zip(ds.pixels, ds.approx_points, ds.sigma_scene, strict=True)]
+    path = tmp_path / "tilted.csv"
+    path.write_text("u,v,x,y,z,sigma_x,sigma_y,sigma_z\n" + "\n".join(rows) + "\n")
+    rc = main(["calibrate", str(path), "--sigma-px", "0.2", "--model", "aligned",
+               "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert "own model check fails" in err and f"{path} lines" in err, err
+    assert (tmp_path / "out" / "result.json").exists()
