@@ -7,9 +7,10 @@ centred on when none is given: both read off the data by fits a few bad rows can
   high-breakdown line fit (:func:`robust_line`: Siegel's repeated median, then least
   trimmed squares). A point typed in metres or centimetres projects where the true one
   does (the model is scale-free), a swapped or mistyped row is one of the trimmed.
-* :func:`point_start` - the start of every fit on approximate points: the design's
-  ``xi, h, beta`` with that camera, so that the first residuals measure the rows and not
-  how far the design is from this sensor (``docs/robustness.md``, section 4c).
+* :func:`point_start` - the start of every fit on approximate points: the design's ``xi``
+  with that camera and the cone through the approximate points (:func:`cone_from_points`,
+  combined with the prior of ``h`` and ``beta``), so that the first residuals measure the
+  rows and not how far the design is from this sensor (``docs/robustness.md``, 4c).
 * :func:`design_values` - the design values (the prior's centre): the paper's sensor when
   the data agree with it, else the principal point and focal scale the data imply
   (:func:`design_prior`, the library's default prior); the command line's ``--nominal`` and
@@ -28,9 +29,8 @@ from ..sensor.parameters import SensorParams
 
 __all__ = ["ROBUST_STEPS", "ROBUST_KEEP", "TRIMMED_NOISE_LIMIT", "DESIGN_MISMATCH_SDS",
            "PAPER_IMAGE_SIZE", "robust_line", "camera_from_points", "cone_from_points",
-           "point_start",
-           "trimmed_weights", "tail_score", "design_values", "design_prior", "data_prior",
-           "centre_sd"]
+           "point_start", "trimmed_weights", "tail_score", "design_values", "design_prior",
+           "data_prior", "centre_sd"]
 
 #: concentration steps of the high-breakdown start, and the fraction of points each keeps
 ROBUST_STEPS, ROBUST_KEEP = 4, 0.8
@@ -45,17 +45,18 @@ PAPER_IMAGE_SIZE = (800, 600)
 #: scale is read at the design's xi, so an error of xi shows in it (11 % per 0.05, one
 #: alpha sd per xi sd): over 200 sensors drawn from the default prior (150 points,
 #: 1000-5000 mm, 1-5 % approximate points, fig9 or gaussian) the largest reading was 6.7
-#: sds, the 99 % quantile 4.8, the median 1.8 (``tests/fit/test_start.py`` repeats 40 of
-#: them); the 1280x1024 camera of issue 39 (280 px) reads 41
+#: sds, the 99 % quantile 4.8, the median 1.8 (``tests/fit/test_start.py`` repeats 20 of
+#: them); the 1280x1024 camera of issue 39 (280 px) reads 37
 DESIGN_MISMATCH_SDS = 8.0
-#: the repeated median's quadratic cost is spent on at most this many points
-_MEDIAN_POINTS = 400
+#: the repeated median's quadratic cost is spent on at most this many points (its breakdown
+#: point is that of the sample; the trimmed steps then use every point)
+_MEDIAN_POINTS = 200
 
 
 def robust_line(x, y, *, keep=ROBUST_KEEP, steps=6, with_cov=False):
     """A straight line ``y = a x + b`` a fraction ``1 - keep`` of bad points cannot drag.
 
-    Siegel's repeated median (breakdown point 50 %) on at most 400 evenly spaced points,
+    Siegel's repeated median (breakdown point 50 %) on at most 200 evenly spaced points,
     then concentration steps of least trimmed squares (each refits the ``keep`` fraction
     of all points closest to the line).
 
