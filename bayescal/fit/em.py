@@ -30,7 +30,7 @@ from ..sensor.pose import POSE_NAMES, LaserPose
 from .schur import solve_map
 from .start import ROBUST_KEEP, ROBUST_STEPS, tail_score, trimmed_weights
 
-__all__ = ["ROBUST_STEPS", "ROBUST_KEEP"]
+__all__ = ["ROBUST_STEPS", "ROBUST_KEEP", "CUT_P", "improbable_rows"]
 
 
 class _MapFit:
@@ -90,9 +90,18 @@ CUT_P = 1e-4
 
 def _cut(lik, fit):
     """Rows (N,) bool whose residual at the fit has a chi-square tail below :data:`CUT_P`."""
+    return improbable_rows(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
+
+
+def improbable_rows(lik, psi, q):
+    """Rows (N,) bool whose squared whitened residual at ``psi`` (parameters and extra
+    globals), each point at its best latent from ``q`` (N, 2), has a chi-square tail below
+    :data:`CUT_P`: the least squares' cut, and the posterior's confirmation of it
+    (:func:`bayescal.sample_posterior` flags the rows its start cut that the posterior mean
+    still fits that badly)."""
     from scipy.stats import chi2
 
-    m = lik.min_residual(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
+    m = lik.min_residual(psi, q)
     with np.errstate(invalid="ignore"):
         tail = chi2.logsf(np.where(np.isfinite(m), m, np.inf), np.maximum(lik._n_rows - 2, 1))
     return tail < np.log(CUT_P)
@@ -283,6 +292,7 @@ def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
                 "theta": sol.theta,
                 "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
                 "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik),
+                "cut_rows": np.flatnonzero(getattr(fit, "held", np.zeros(0, bool))),
                 "log_evidence": _log_evidence(lik, prior, fit),
                 "pose_prior_sd": (np.array([prior.pose_dists[n].std() for n in POSE_NAMES])
                                   if nt > 7 else None)},

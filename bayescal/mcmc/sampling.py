@@ -34,6 +34,7 @@ import numpy as np
 
 from .._validation import check_positive, resolve_rng
 from ..errors import InvalidTypeError, InvalidValueError
+from ..fit.em import improbable_rows
 from ..fit.simultaneous import check_model, point_likelihood
 from ..fit.start import data_prior
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
@@ -254,6 +255,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            budget=budget, draw_iter=n_iter if aligned else None,
                            **(_aligned_run() if aligned else {}))
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    cut = map_res.extras.get("cut_rows", np.zeros(0, int))
+    if post.outlier_prob is not None and len(cut):   # the start's cut, if the posterior agrees
+        bad = improbable_rows(lik, run["psi"].mean(axis=0), run["q"].mean(axis=0))[cut]
+        post.outlier_prob[cut[bad]] = 1.0
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
