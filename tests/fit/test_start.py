@@ -132,3 +132,25 @@ def test_an_off_design_sensor_with_swapped_rows_is_handled(noise):
     # a tail row the cut at p < 1e-4 sets aside in the clean file too
     assert {32, 157} <= flagged and len(flagged - {32, 157}) <= 1
     assert abs(res.params.h - OFF.h) < 4 * res.std[6]
+
+
+@pytest.mark.slow
+def test_the_shell_derives_the_same_design_on_another_image_size(tmp_path, capsys):
+    """Issue 39, item 3 from the shell: the command line's design values now come from the
+    library's rule (the image centre, the focal scale the points imply)."""
+    from bayescal.cli.main import main
+
+    ds = bc.simulate_room(BIG, range_mm=2500, n_points=150, sigma_px=0.3, approx_error=0.03,
+                          rng=0)
+    sd = np.maximum(ds.sigma_scene, 1.0)           # the file's sds: none near zero
+    rows = [",".join(f"{v:.9g}" for v in (*p, *a, *s))
+            for p, a, s in zip(ds.pixels, ds.approx_points, sd, strict=True)]
+    path = tmp_path / "big.csv"
+    path.write_text("u,v,x,y,z,sigma_x,sigma_y,sigma_z\n" + "\n".join(rows) + "\n")
+    rc = main(["calibrate", str(path), "--sigma-px", "0.3", "--image-size", "1280x1024",
+               "--out", str(tmp_path / "out")])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    nominal, _ = design_values(ds.pixels, ds.approx_points, image_size=(1280, 1024))
+    assert "u0 = 640 (image centre)" in out.out
+    assert f"alpha_u = {nominal.alpha_u:.6g} (focal scale from the approximate points)" in out.out
