@@ -32,6 +32,7 @@ from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
 from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged, sample_collapsed
+from .ensemble import prime_allocator
 from .steps import BUDGET_FACTOR
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
@@ -107,6 +108,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         + bool(outliers)
     check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
+    prime_allocator()                  # the first call of a process as fast as the next
     prior = as_prior(prior, camera)
     psi_map, cov_map, q_map, map_res = plan_map_start(pixels, plan, sigma_px=sigma_px,
                                                       prior=prior, init=init,

@@ -119,9 +119,9 @@ class CollapsedTarget:
     def __call__(self, s):
         s = np.atleast_2d(s)
         self.n_calls += len(s)
-        psi = self.coords.from_sampling(s)
+        psi, log_jac = self.coords.from_sampling_log_jacobian(s)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lp = self.log_prior(psi) + self.coords.log_jacobian(psi)
+            lp = self.log_prior(psi) + log_jac
         out = np.full(len(psi), -np.inf)
         ok = np.isfinite(lp)
         if np.any(ok):
