@@ -283,11 +283,12 @@ def _walker_terms(theta, sig):
             "cv": t[:, 4] * inv_s}
 
 
-def _fused_terms(p, c, x, y, w, last, keep_cp):
+def _fused_terms(p, c, x, y, w, last, keep_cp, grad=True):
     """:func:`point_terms` of the aligned cone in fewer passes (in place, rho-based slopes):
     ``(rr, (C00, C01, C11), g0, g1, (Cp, Cs) or None)`` with ``C = Cp + Cs`` (``rr`` only
     on the ``last`` pass). ``x, y`` (N,) on the first Gauss-Newton pass (the shared start:
-    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
+    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N).
+    Without ``grad`` (a density alone) C, g0 and g1 are None (the same ``rr`` and parts)."""
     xi, iT, inv_s = p["xi"], p["iT"], p["inv_s"]
     wx, wy, wz = w
     rho2 = x * x + y * y
@@ -325,22 +326,27 @@ def _fused_terms(p, c, x, y, w, last, keep_cp):
     vy *= b                                         # d rv / d y
     pm = (x * cy) * t
     nuy, nvx = a * pm, b * pm                       # -d ru / d y, -d rv / d x
-    g0 = ux * ru - nvx * rv
-    g1 = vy * rv - nuy * ru
     sx, sy = (wz * cx) * iT, (wz * cy) * iT           # wz dz/dx, wz dz/dy
     rx, ry = (x - c["ax"]) * wx, (y - c["ay"]) * wy
     rz = z - c["az"]
     rz *= wz
-    g0 += wx * rx + sx * rz
-    g1 += wy * ry + sy * rz
+    g0 = g1 = C = None
+    if grad:
+        g0 = ux * ru - nvx * rv
+        g1 = vy * rv - nuy * ru
+        g0 += wx * rx + sx * rz
+        g1 += wy * ry + sy * rz
     rr = None
     if last:
         rr = ru * ru
         rr += rv * rv
         rr += rx * rx + ry * ry + rz * rz
+    if not (grad or keep_cp):
+        return rr, C, g0, g1, None
     cp = (ux * ux + nvx * nvx, ux * nuy + nvx * vy, nuy * nuy + vy * vy)   # cp[1]: -Cp01
     cs = (wx * wx + sx * sx, sx * sy, wy * wy + sy * sy)
-    C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
+    if grad:
+        C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
     return rr, C, g0, g1, (((cp[0], -cp[1], cp[2]), cs) if keep_cp else None)
 
 
@@ -433,7 +439,8 @@ def draw_log_density(lik, psi, x, y):
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         s, extra = _draw_setup(lik, psi)
         flat = lik.point_prior == "flat"
-        rr, _, _, _, parts = _fused_terms(s["p"], s["c"], x, y, s["w"], True, not flat)
+        rr, _, _, _, parts = _fused_terms(s["p"], s["c"], x, y, s["w"], True, not flat,
+                                          grad=False)
         out = -0.5 * rr
         if not flat:                                # the Jeffreys prior at the reference noise
             sp, ss = s["sp"][:, None], s["ss"][:, None]

@@ -95,7 +95,9 @@ def draw_points(lik, psi, q_start, rng, *, n_mh, n_iter, batch=None):
             acc.append(accept.mean())
         # no draw inside the model's domain (e.g. an outlier's wide azimuth off its wall):
         # the Laplace mode, so that every point sample stays finite
-        q = np.where(_along(np.isfinite(lp), first), q, qm)
+        finite = np.isfinite(lp)
+        if not finite.all():
+            q = np.where(_along(finite, first), q, qm())
         out[lo:lo + batch] = np.moveaxis(q, 0, -1) if first else q
     return out, float(np.mean(acc)) if acc else float("nan")
 
@@ -106,9 +108,9 @@ def _along(mask, first):
 
 
 def _proposal(lik, psi, q_start, n_iter):
-    """The Laplace proposal of one batch: its mean, a draw function (``rng`` -> draws and
-    their log density up to a constant), the target's log density up to a constant per
-    (sample, point), and whether the points' coordinates come first (k, b, N) in place of
+    """The Laplace proposal of one batch: a function giving its mean (rarely needed), a draw
+    function (``rng`` -> draws and their log density up to a constant), the target's log
+    density up to a constant per (sample, point), and whether the points' coordinates come first (k, b, N) in place of
     last (b, N, k). The aligned cone's in fused passes on contiguous coordinates
     (:func:`~bayescal.likelihood.point_algebra.draw_proposal`: 2x faster at N = 600,
     the same draws to rounding), any other likelihood's from ``laplace`` and
@@ -120,11 +122,11 @@ def _proposal(lik, psi, q_start, n_iter):
     if fused is None:
         _, qm, C = lik.laplace(psi, q_start, n_iter=n_iter)
         L = chol_of_inverse(C)                                           # (b, N, k, k)
-        return qm, (lambda rng: _gauss_draw(qm, L, rng)), \
+        return (lambda: qm), (lambda rng: _gauss_draw(qm, L, rng)), \
             (lambda q: lik.point_log_density(psi, q)), False
     x, y, C = fused
     L = _chol_of_inverse2(*C)
-    return np.stack([x, y]), (lambda rng: _gauss_draw2(x, y, L, rng)), \
+    return (lambda: np.stack([x, y])), (lambda rng: _gauss_draw2(x, y, L, rng)), \
         (lambda q: draw_log_density(lik, psi, q[0], q[1])), True
 
 
