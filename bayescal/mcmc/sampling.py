@@ -262,7 +262,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
 def _aligned_run():
     """sample_collapsed's settings for the aligned cone with approximate points."""
-    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR}
+    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR,
+            "draw_stepped": True}
 
 
 def _with_offset(post, offset_sd, rng):
