@@ -56,6 +56,14 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     #: net of the pose's scale (:func:`bayescal.mcmc.coordinates.pose_scale`) tau is ~3 and 80
     #: steps do: the tuning then took half the CPU, ``docs/floorplan.md`` section 13, item 8
     tune_steps = 80
+    #: the first tuning round's independence acceptance from which the sampler would leave
+    #: HMC out (``bayescal.mcmc.steps.IMH_FITS``, 0.15, for the others): never here. The
+    #: first round from the least-squares Laplace covariance accepts 10-17 % on plans not
+    #: tuned on (8-12 % on the benchmark plans), and at 15-17 % the chains without HMC had max
+    #: tau 10-38 (1000-2500 steps, up to 15.7 s of CPU per 1000 ESS, 6.3x the aligned plan
+    #: posterior) where with HMC 2.4-4.8; the first round stays, as a warm-up (HMC from its
+    #: start had max tau 3.5-9.5 against 3.0-5.6); docs/floorplan.md section 13, item 9
+    imh_fits = float("inf")
     #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`)
     #: and the ring radii net of the pose's scale (``pose_scale``): max tau 31 -> 6.9 here
     #: with the first (150 points; the walls as they are, not net of the pose), 8.8 -> 3.5

@@ -284,9 +284,11 @@ class Coordinates:
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
         return psi, k, c, m
 
-    def inverse_jacobian(self, s, eps=1e-8):
+    def inverse_jacobian(self, s, eps=1e-8, *, log_jacobian=False):
         """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
-        psi_j / d s_k``.
+        psi_j / d s_k``; with ``log_jacobian`` also :meth:`log_jacobian` at psi (W,) and its
+        gradient in ``s`` (W, d), from the same shifted copies (it reads only the mixed
+        entries and the outlier fraction, whose term is differentiated in closed form).
 
         Only ``xi``, the ring radii, ``H``, ``beta`` and the pose (entries 0, 1, 2, 5, 6,
         and 7-10 with the pose) move other entries of psi through the scales, the pose's
@@ -304,15 +306,22 @@ class Coordinates:
         h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, m)
         E = np.zeros((m, W, d))
         E[np.arange(m), :, mixed] = h.T
-        with np.errstate(invalid="ignore"):
-            out = self.from_sampling(np.concatenate([s[None], s[None] + E]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out, k, c, m = self._inverse(np.concatenate([s[None], s[None] + E]))
             psi = out[0]
             J[:, mixed, :] = np.moveaxis((out[1:] - psi) / h.T[..., None], 0, 1)
             f = self.frac_index
+            y = None if f is None else s[:, f]
             if f is not None:
-                y = s[:, f]
                 J[:, f, f] = np.where((y > 0) & (y < 1), 3.0 / (y * (1.0 - y**3)), np.nan)
-        return psi, J
+            if not log_jacobian:
+                return psi, J
+            lj = self._log_jacobian(out, k, c, m)                        # (1 + m, W)
+            dlj = np.zeros((W, d))
+            dlj[:, mixed] = ((lj[1:] - lj[0]) / h.T).T
+            if f is not None:               # log 3 - log y - log(1 - y^3), y = w^(1/3)
+                dlj[:, f] = -1.0 / y + 3.0 * y * y / (1.0 - y**3)
+        return psi, J, lj[0], dlj
 
     def log_jacobian(self, psi):
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
