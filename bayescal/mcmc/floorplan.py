@@ -33,7 +33,7 @@ from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
 from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged, sample_collapsed
 from .ensemble import prime_allocator
-from .steps import BUDGET_FACTOR
+from .steps import BUDGET_FACTOR, BURN_FLOOR
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
 
@@ -123,7 +123,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter,
-                           n_tune=n_tune, budget=budget)
+                           n_tune=n_tune, budget=budget,
+                           burn_floor=getattr(lik, "burn_floor", BURN_FLOOR))
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
     post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",
