@@ -16,9 +16,10 @@ from .errors import BayescalError, BayescalWarning, DegenerateInputError, Extrac
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
-from .image.chessboard import find_chessboard
+from .image.chessboard import board_extent, find_chessboard
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
+from .image.ringcv import RingCV, ring_cross_validation
 from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
@@ -111,9 +112,12 @@ __all__ = [
     "extract_laser",
     "read_image",
     "LaserPixels",
+    "ring_cross_validation",
+    "RingCV",
     "BoardView",
     "board_points",
     "find_chessboard",
+    "board_extent",
     "render_board",
     "load_views",
     "write_views",

@@ -1,6 +1,12 @@
 """Helpers shared by tests in several folders (``tests/`` is on ``sys.path`` through
 ``conftest.py``, so test modules import this as ``helpers``)."""
 
+import contextlib
+import io
+import os
+import types
+import warnings
+
 import numpy as np
 
 
@@ -99,3 +105,37 @@ def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAM
         paths.append(path)
         truths.append(truth)
     return paths, truths
+
+
+def run_cli(*args, cwd, env=None):
+    """``bayescal ARGS`` in ``cwd``; returns ``returncode``, ``stdout`` and ``stderr`` like a
+    finished subprocess.
+
+    Run in this process (``bayescal.cli.main.main``), with the warning filters a fresh
+    interpreter starts with and ``env`` (variables the command reads) set for the call: an
+    interpreter and bayescal's imports per command cost 1-2 s of CPU each, most of the
+    command-line tests' time. The console entry point's own exit path (Ctrl-C,
+    ``os._exit``) is tested by subprocess where it matters."""
+    from bayescal.cli.main import main
+
+    out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
+    saved = {k: os.environ.get(k) for k in (env or {})}
+    os.environ.update(env or {})
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+                warnings.catch_warnings():
+            warnings.resetwarnings()          # the filters of a fresh interpreter
+            warnings.simplefilter("default")
+            for cat in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                        ResourceWarning):
+                warnings.filterwarnings("ignore", category=cat)
+            code = main([str(a) for a in args])
+    finally:
+        os.chdir(here)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())

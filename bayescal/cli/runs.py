@@ -14,6 +14,7 @@ from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..io.tables import OFFSET_SD_KEY, image_size_line, offset_sd_line
 from ..sensor.pose import POSE_NAMES
+from . import matching as mt
 from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
 
@@ -125,6 +126,7 @@ def write_images(folder, ds, *, seed, image_size=(800, 600)):
 def run_extract(job, folder):
     """Extract the laser pixels; write ``laser.csv`` and ``overlay.png``."""
     from ..image.extract import extract_laser
+    from ..image.ringcv import ring_cv_line
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
 
@@ -133,15 +135,15 @@ def run_extract(job, folder):
                            along_sd=job.along_sd, radius=job.radius, channel=job.channel)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
         raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
-    p = folder.path
+    p, cv = folder.path, ring_cv_line(lp)
     write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
-                       image_size=job.image.shape[1::-1])
+                       image_size=job.image.shape[1::-1], extra_note=f"\n{cv}")
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
     sd = np.nanmedian(lp.sd_normal[~lp.flagged])      # flagged points may have no sd
     print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd across the "
           f"ring {sd:.3f} px (unflagged); wrote {job.out / 'laser.csv'}, "
-          f"{job.out / 'overlay.png'}")
+          f"{job.out / 'overlay.png'}\n{cv}")
 
 
 def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_size=None):
@@ -285,8 +287,9 @@ def calibrate_result(job, choice=None):
                 else _nothing():
             return _calibrate(job, choice)
     except DegenerateInputError as exc:         # input that cannot calibrate: exit 2
-        where = f"{data.pixel_table.path}: " if data is not None else ""
-        raise UsageError(f"{where}{exc}") from None
+        hint = mt.camera_hint(data, job.nominal, job.inputs.get("camera"))
+        raise UsageError(f"{data.pixel_table.path}: {exc}{hint}" if data is not None
+                         else str(exc)) from None
 
 
 def _calibrate(job, choice):
@@ -322,18 +325,14 @@ def _calibrate(job, choice):
         result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
     if not result.converged:
         return result, f"{job.method} calibration did not converge: {_located(result, data)}"
-    if result.extras.get("model_misfit"):            # written, but not a success: exit 1
-        return result, f"{job.method} calibration: {_located(result, data, 'misfit_message')}"
-    return result, None
+    misfit = result.extras.get("model_misfit") and _located(result, data, "misfit_message")
+    return result, f"{job.method} calibration: {misfit}" if misfit else None   # 1: written
 
 
 def _located(result, data, key=None):
-    """A result's message (or ``extras[key]``) with the rows it names
-    (``extras["failed_rows"]``) as file lines."""
+    """A result's message (or ``extras[key]``), the rows it names as the file's lines."""
     from ..checks.datafile import rows_to_lines
-
-    rows = result.extras.get("failed_rows")
-    text = str(result.extras[key] if key else result.message)
+    rows, text = result.extras.get("failed_rows"), str(result.extras.get(key, result.message))
     if rows is None or data is None:
         return text
     lines = ", ".join(map(str, rows_to_lines(data, rows)))
@@ -435,6 +434,7 @@ def run_reconstruct(job, folder):
     out, result = folder.path, job.result
     recon = result.reconstructor(rng=job.seed) if hasattr(result, "param_samples") \
         else result.reconstructor(sigma_px=job.sigma_px)
+    mt.say_pixel_noise(job)
     rows, single = [], len(job.frames) == 1
     frames = job.frames
     if not single:
@@ -443,13 +443,13 @@ def run_reconstruct(job, folder):
         frames = tqdm(frames, desc="frames", unit="frame", file=sys.stderr)
     for path, pixels, pixel_cov in frames:
         t0 = time.perf_counter()
-        rec = recon(pixels, pixel_cov=pixel_cov)
+        rec = recon(pixels, pixel_cov=mt.frame_noise(job, pixel_cov))
         seconds = time.perf_counter() - t0
         name = "reconstruction" if single else path.stem
         folder.add(rec.save(out / f"{name}.ply"))
         sd = np.sqrt(np.maximum(np.diagonal(rec.covariance, axis1=1, axis2=2), 0))
         rows.append((str(path), len(pixels), int((~rec.valid).sum()),
-                     float(np.nanmedian(np.linalg.norm(sd, axis=1))), seconds, f"{name}.ply"))
+                     mt.quiet_median(np.linalg.norm(sd, axis=1)), seconds, f"{name}.ply"))
     if single:
         mean, cov = rec
         folder.add(points_csv(out / "reconstruction.csv", mean, cov,
@@ -470,7 +470,7 @@ def run_reconstruct(job, folder):
     method = "bayes" if hasattr(result, "param_samples") else getattr(result, "method", "")
     print(f"reconstructed {sum(r[1] for r in rows)} pixels in {len(rows)} frame(s) with the "
           f"{method} calibration of {job.run}; median sd "
-          f"{np.nanmedian([r[3] for r in rows]):.3g} mm")
+          f"{mt.quiet_median([r[3] for r in rows]):.3g} mm")
     written = (["reconstruction.csv", "reconstruction.ply", "reconstruction.png"] if single
                else [r[5] for r in rows[:3]] + (["..."] if len(rows) > 3 else [])
                + ["frames.csv"])

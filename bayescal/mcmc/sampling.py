@@ -59,6 +59,7 @@ from .collapsed import (
     sample_collapsed,
 )
 from .collapsed import posterior_outlier_prob as _outlier_prob
+from .ensemble import prime_allocator
 from .floorplan import SCENE_REQUIRED, sample_plan_posterior
 from .steps import BUDGET_FACTOR, from_sampling, ring_scale, seeded_sampler, to_sampling
 
@@ -220,6 +221,7 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
     # sensor unless they disagree: bayescal.fit.start.data_prior, as the least squares does)
     prior = data_prior(prior, camera, pixels, approx_points)[0]
     rng = resolve_rng(rng)
+    prime_allocator()                  # the first call of a process as fast as the next
     if budget is not None and not (isinstance(budget, (int, float, np.number))
                                    and not isinstance(budget, bool) and budget >= 1):
         raise InvalidValueError(f"budget must be None or a number >= 1 (times the projected "
@@ -268,7 +270,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
 def _aligned_run():
     """sample_collapsed's settings for the aligned cone with approximate points."""
-    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR}
+    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR,
+            "draw_stepped": True}
 
 
 def _with_offset(post, offset_sd, rng):

@@ -1,4 +1,5 @@
-"""The command line end to end (subprocess), its output-folder rules, and the report helpers.
+"""The command line end to end (in this process; by subprocess where the interpreter
+matters), its output-folder rules, and the report helpers.
 
 Every bad-input case checks three things: exit code 2, a message naming the
 file, line and column, and that nothing was written.
@@ -13,6 +14,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import bayescal
 import bayescal as bc
@@ -23,12 +25,8 @@ from bayescal.report.report import linear_reconstruction
 N_POINTS = 60
 
 
-def run(*args, cwd, env=None, timeout=600):
-    """Run ``python -m bayescal ARGS`` in ``cwd``; returns the CompletedProcess."""
-    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
-    full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **(env or {}))
-    return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, env=full_env, timeout=timeout)
+#: ``bayescal ARGS`` in a folder, in this process
+run = run_cli
 
 
 @pytest.fixture(scope="module")
@@ -119,8 +117,11 @@ def test_output_folder_is_never_overwritten_without_force(sim, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "mine.txt").write_text("user data")
+    # a folder bayescal did not write: --force is not suggested (it would be refused too)
     r = run("simulate", "--out", out, "--n-points", 10, cwd=tmp_path)
-    assert r.returncode == 2 and "exists and is not empty; pass --force" in r.stderr
+    assert r.returncode == 2 and "was not written by bayescal" in r.stderr
+    assert "--force or not: choose a new or empty folder, e.g. --out" in r.stderr
+    assert f"{out}-2" in r.stderr
     r = run("simulate", "--out", out, "--n-points", 10, "--force", cwd=tmp_path)
     assert r.returncode == 2 and "was not written by bayescal" in r.stderr
     assert [p.name for p in out.iterdir()] == ["mine.txt"]
@@ -294,7 +295,7 @@ def test_report_rebuilds_from_a_run(seq_run, sim, tmp_path):
     md = _check_report(tmp_path / "rep")
     assert "truth" in md        # the run recorded its --truth file
     r = run("report", folder, "--out", "rep", cwd=tmp_path)
-    assert r.returncode == 2 and "not empty" in r.stderr
+    assert r.returncode == 2 and "holds an earlier bayescal run; pass --force" in r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -430,7 +431,7 @@ def test_study_unknown_name_lists_available(tmp_path):
     assert r.returncode == 2 and "no study named 'benchmark'" in r.stderr
 
 
-def test_study_runs_the_script_with_out_and_quick(tmp_path):
+def test_study_runs_the_script_with_out_and_quick(tmp_path, capfd):
     (tmp_path / "studies").mkdir()
     (tmp_path / "studies" / "echo.py").write_text(
         "import pathlib, sys\n"
@@ -448,8 +449,10 @@ def test_study_runs_the_script_with_out_and_quick(tmp_path):
     assert args[args.index("--seed") + 1] == "0" and args[args.index("--workers") + 1] == "2"
     assert "--quick" in args and "--scheduler" not in args
     assert not [p for p in tmp_path.iterdir() if "bayescal-tmp" in p.name]
-    # the script's last line names the final folder, not the staging one it wrote into
-    assert "wrote o/r.txt" in r.stdout and "bayescal-tmp" not in r.stdout, r.stdout
+    # the script's last line names the final folder, not the staging one it wrote into (the
+    # script is a child process: its lines go to this process's file descriptor 1)
+    out = r.stdout + capfd.readouterr().out
+    assert "wrote o/r.txt" in out and "bayescal-tmp" not in out, out
     r = run("study", "echo", "--out", "x--fail", cwd=tmp_path, env=env)
     assert r.returncode == 1 and "study echo exited with code 3" in r.stderr
 
@@ -494,13 +497,13 @@ def test_demo_small(tmp_path):
 @pytest.mark.slow
 def test_demo_full_as_make_demo(tmp_path):
     """``make demo``: the paper's large room, all three methods, in a few minutes."""
-    r = run("demo", "--out", "out", "--force", "--no-progress", cwd=tmp_path, timeout=1200)
+    r = run("demo", "--out", "out", "--force", "--no-progress", cwd=tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     index = (tmp_path / "out" / "index.md").read_text()
     assert "| simultaneous | ok |" in index and "| bayes | ok |" in index
     assert "| floorplan | ok |" in index and "| image | ok |" in index
     # make demo again: --force replaces the stages' folders
-    r = run("demo", "--out", "out", "--force", "--no-progress", cwd=tmp_path, timeout=1200)
+    r = run("demo", "--out", "out", "--force", "--no-progress", cwd=tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
 
 
@@ -580,7 +583,8 @@ def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
 
 
 def test_result_rows_flag_prior_dominated_parameters():
-    """sd_ratio > PRIOR_DOMINATED_RATIO, or a near-null direction, marks a parameter."""
+    """phi, alpha_u, alpha_v and sd_ratio > PRIOR_DOMINATED_RATIO mark a parameter; with a
+    prior a near-null direction of the data alone does not (phi's here), without one it does."""
     from bayescal.likelihood.priors import default_prior
     from bayescal.report.report import parameter_rows
     from bayescal.results.calibration import CalibrationResult, identifiability_report
@@ -598,7 +602,13 @@ def test_result_rows_flag_prior_dominated_parameters():
         identifiability=identifiability_report(J, bc.PARAM_NAMES))
     rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
     flagged = sorted(n for n, r in rows.items() if r["prior_dominated"])
-    assert flagged == ["beta", "phi", "xi"]
+    assert flagged == ["alpha_u", "alpha_v", "beta", "phi", "xi"]
+    J[:, 7] = 0.0                                       # beta too: no information
+    res.identifiability = identifiability_report(J, bc.PARAM_NAMES)
+    rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
+    assert not rows["h"]["prior_dominated"]             # ratio 0.4: the priors do not decide
+    no_prior = {r["name"]: r["prior_dominated"] for r in parameter_rows(res)}
+    assert sorted(n for n, f in no_prior.items() if f) == ["alpha_u", "alpha_v", "beta", "phi"]
     np.testing.assert_allclose(rows["h"]["sd_ratio"], 0.4, rtol=1e-12)
     np.testing.assert_allclose(rows["u0"]["q95"] - rows["u0"]["q05"], 2 * 1.6448536 * sd[4],
                                rtol=1e-7)
