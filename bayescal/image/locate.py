@@ -268,7 +268,9 @@ def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, high
 #: more (renderer2's tilted, faint, red, textured, lamp, 1280x1024, near and cam1280 rooms;
 #: 27 pairs of a laser ring, gross < 5 %, and a ring on a rail over a sector, gross > 20 %):
 #: laser rings 0.00-0.10, the rail's 0.32-0.58 in 22 of 27 (0.06-0.10 in five, where the
-#: rail is as wide as the laser: near rooms, cam1280); real frames' rings 0.02-0.18
+#: rail is as wide as the laser: near rooms, cam1280, and the fractions decide); the real
+#: dark frames' rings 0.02-0.10 on such pairs (0.01-0.18 on all). WIDTH_SAME is 2x the
+#: laser's largest, WIDTH_JUMP 3x it and under the rail's smallest where it differs
 WIDTH_SAME = 0.2
 WIDTH_JUMP = 0.3
 
