@@ -150,14 +150,15 @@ def _without_stripes(blobs):
 #: a laser ring is one closed curve, its light there at every azimuth. Where more than a
 #: fifth of the ring found is flagged, two things must hold along its whole path: (1) half
 #: of its azimuths hold a peak of PATH_SNR noise sds or more (the median over the path,
-#: flagged azimuths included): measured 21-290 on laser rings with that much flagged or
-#: more (our 1280x1024 renders over strong texture, real frames) and 37 on the lit real
-#: frame's faint ring, against 0-7.4 on ring-less images (three renderers, the second
-#: real sensor's laser-off frame, the lit real frame's wall, our 1280x1024 laser-off
-#: renders): 1.7x margins either side; (2) it holds a point the extractor trusts (on its
-#: smooth curve) on LEAD more of its azimuths than the best closed path 8 px or more off it,
-#: measured the same way: rings lead by 0.39-0.67, texture alone by -0.37 to 0.42 (a guard
-#: where a second ring-like path exists). docs/images.md
+#: flagged azimuths included): measured 21-290 on laser rings (our 1280x1024 renders over
+#: strong texture, seeds 0-11, 23-28 on the three with a fifth flagged; the real dark
+#: frames) and 37 on the lit real frame's faint ring, against 0-7.4 on ring-less images
+#: (three renderers, the second real sensor's laser-off frame, the lit real frame's wall,
+#: our 1280x1024 laser-off renders): 1.7x and 1.6x margins; (2) it holds a point the
+#: extractor trusts (on its smooth curve) on LEAD more of its azimuths than the best closed
+#: path 8 px or more off it, measured the same way: rings lead by 0.21-0.78 (0.56-0.68
+#: where a fifth is flagged), texture alone by -0.26 to 0.37 (a guard where a second
+#: ring-like path exists). docs/images.md
 PATH_SNR = 12.0
 LEAD = 0.2
 

@@ -16,7 +16,7 @@ import numpy as np
 from .._validation import check_positive
 from ..errors import InvalidValueError
 from .doubt import check_colour, check_ring, colour_heights, is_white
-from .locate import ring_candidates
+from .locate import WIDTH_JUMP, WIDTH_SAME, parts_alike, ring_candidates, stripe_widths
 from .measure import OFFSET_SD, LaserPixels, laser_signal, measure_polar, measure_ring
 from .read import read_image
 from .ring import circle_fit
@@ -145,31 +145,39 @@ def _choose(cands, signal, *, colour=None, **kw):
     challenges the best so far (at first the circle most azimuths share): it wins if it
     runs apart from it (1.5 px or more away over a tenth of its azimuths or more) and keeps
     a larger fraction of its azimuths by more than :data:`CHOICE_MARGIN` (the strict
-    off-curve gate's flags left out). In a colour image (``colour(pixels, center)``: the
-    points' colour heights, :func:`~bayescal.image.doubt.colour_heights`) where the two
-    run apart, the one whose points there are the laser's colour wins over one whose points
-    are white, whatever the fractions."""
+    off-curve gate's flags left out). Where the two share half their paths or more, the one
+    whose stripe keeps its width where they part wins over one whose stripe changes width
+    there (it left the ring for another ridge: :func:`~bayescal.image.locate.parts_alike`),
+    whatever the fractions. In a colour image (``colour(pixels, center)``: the points'
+    colour heights, :func:`~bayescal.image.doubt.colour_heights`) where the two run apart,
+    the one whose points there are the laser's colour wins over one whose points are white,
+    whatever else."""
     if len(cands) == 1:
         return cands[0]
     best = None
     kw = {k: v for k, v in kw.items() if k != "highpass_px"}
     for cand in cands:
-        lp, gates = measure_polar(signal, cand.pol, cand.k, cand.model, cand.on_blob, **kw)
+        lp, _ = measure_polar(signal, cand.pol, cand.k, cand.model, cand.on_blob, **kw)
         if best is None:
-            best = lp, cand, gates
+            best = lp, cand, stripe_widths(signal, cand)
             continue
-        b = best[0]
+        b, _, w_b = best
         d = np.hypot(*(lp.pixels[:, None, :] - b.pixels[None]).T)
         apart, apart_b = np.min(d, axis=0) > 1.5, np.min(d, axis=1) > 1.5
         if np.mean(apart) < 0.1:
             continue
+        w = stripe_widths(signal, cand)
         lead = np.mean(~lp.flagged) > np.mean(~b.flagged) + CHOICE_MARGIN
+        if max(np.mean(apart), np.mean(apart_b)) <= 0.5:
+            j, j_b = parts_alike(w, ~lp.flagged, apart), parts_alike(w_b, ~b.flagged, apart_b)
+            lead = (lead or (j <= WIDTH_SAME and j_b > WIDTH_JUMP)) and \
+                not (j_b <= WIDTH_SAME and j > WIDTH_JUMP)
         if colour is not None:
-            w = is_white(colour(lp.pixels[apart & ~lp.flagged], lp.center))
-            w_b = is_white(colour(b.pixels[apart_b & ~b.flagged], b.center))
-            lead = (lead and not (w and w_b is False)) or (w is False and w_b)
+            white = is_white(colour(lp.pixels[apart & ~lp.flagged], lp.center))
+            white_b = is_white(colour(b.pixels[apart_b & ~b.flagged], b.center))
+            lead = (lead and not (white and white_b is False)) or (white is False and white_b)
         if lead:
-            best = lp, cand, gates
+            best = lp, cand, w
     return best[1]
 
 

@@ -60,3 +60,14 @@ def test_a_path_from_the_points_themselves(image):
 def test_bad_paths_are_refused(signal, center, radius, match):
     with pytest.raises(InvalidValueError, match=match):
         measure_ring(signal, center, radius)
+
+
+def test_parts_alike_compares_a_rings_width_where_it_parts_with_where_it_agrees():
+    from bayescal.image.locate import parts_alike
+
+    w = np.r_[np.full(60, 1.2), np.full(40, 0.8)]        # a narrower ridge over 40 %
+    apart = np.r_[np.zeros(60, bool), np.ones(40, bool)]
+    kept = np.ones(100, bool)
+    assert parts_alike(w, kept, apart) == pytest.approx(np.log(1.5))
+    assert parts_alike(np.full(100, 1.2), kept, apart) == pytest.approx(0.0)
+    assert np.isnan(parts_alike(w, kept & ~apart, apart))     # nothing kept where apart
