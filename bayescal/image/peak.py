@@ -59,17 +59,19 @@ def flank_baseline(values, k, level, *, inner=3, outer=9, q=5.0):
 
 def _pixel_variance(dmu_ds, idx, wts, var_img):
     """Variance of a function of bilinear samples, ``sum (d mu / d pixel)^2 var(pixel)``:
-    the coefficients of samples that share a pixel are summed first (they are correlated)."""
+    the coefficients of samples that share a pixel are summed first (they are correlated).
+
+    Each pixel's summed coefficient is found in an 8x8 grid about the samples' corner
+    (bincount); ``sum_p coef_p^2 var_p`` is then taken as ``sum`` over the (sample, pixel)
+    pairs of ``c * coef_p * var_p``, which reads the variance at the pairs' pixels only."""
     n = len(dmu_ds)
     anchor = idx.reshape(n, -1, 2).min(axis=1)
     loc = np.clip(idx - anchor[:, None, None, :], 0, 7)
-    flat = (loc[..., 0] * 8 + loc[..., 1]).reshape(n, -1)
-    coefs = np.zeros((n, 64))
-    np.add.at(coefs, (np.arange(n)[:, None], flat), (dmu_ds[..., None] * wts).reshape(n, -1))
-    gi = anchor[:, None, :] + np.stack(np.unravel_index(np.arange(64), (8, 8)), -1)[None]
-    gi[..., 0] = np.clip(gi[..., 0], 0, var_img.shape[0] - 1)
-    gi[..., 1] = np.clip(gi[..., 1], 0, var_img.shape[1] - 1)
-    return np.sum(coefs ** 2 * var_img[gi[..., 0], gi[..., 1]], axis=1)
+    slot = (np.arange(n)[:, None] * 64 + (loc[..., 0] * 8 + loc[..., 1]).reshape(n, -1))
+    c = (dmu_ds[..., None] * wts).reshape(n, -1)
+    coefs = np.bincount(slot.ravel(), weights=c.ravel(), minlength=n * 64)
+    v = var_img[idx[..., 0], idx[..., 1]].reshape(n, -1)
+    return np.sum(c * coefs[slot] * v, axis=1)
 
 
 def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
