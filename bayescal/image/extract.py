@@ -23,7 +23,8 @@ from .peak import fit_peaks, flank_baseline
 from .read import as_gray, demosaiced_blur, read_image
 from .ring import circle_fit, ridge_near, ring_curve
 
-__all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD"]
+__all__ = ["LaserPixels", "extract_laser", "measure_ring", "laser_frame", "IMAGE_SUFFIXES",
+           "OFFSET_SD"]
 
 #: sd (px, per axis) of a displacement of the ring as a whole that the per-point covariances
 #: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
@@ -261,6 +262,39 @@ def _choose(cands, sig, var_img, *, colour=None, **kw):
         if lead:
             best = lp, cand, gates
     return best
+
+
+def measure_ring(sig, var_img, pol, k, on_blob, *, offset_sd=OFFSET_SD, **kw):
+    """The ring's points given where it runs: the extractor's peak fits, gates and
+    covariances (steps 7-10 of ``docs/images.md``) on the profiles ``pol`` at the peak
+    samples ``k``, without the search that found them (the ring tracker's,
+    :mod:`bayescal.image.track`, follows the ring from the last frame instead).
+
+    Parameters
+    ----------
+    sig, var_img : ndarray, shape (H, W)
+        The laser's signal and its noise variance per pixel.
+    pol : PolarImage
+        Profiles about the centre (``values``, ``base``, ``high``, ``valid``, ``radii``,
+        ``phi``, ``sub``, ``center`` and ``model``, the ring's robust radius per azimuth);
+        only the samples within 28 of ``k`` are read.
+    k : ndarray of int, shape (n,)
+        Radius index of each profile's peak sample.
+    on_blob : ndarray of bool, shape (n, K)
+        Samples on a saturated blob.
+    offset_sd : float, optional
+    **kw
+        ``min_snr``, ``gate_px``, ``along_sd``, ``var_floor`` (as :func:`extract_laser`),
+        ``flank`` (a laser-off difference) and ``top`` (the clip level, or None).
+
+    Returns
+    -------
+    lp : LaserPixels
+    gates : dict of str to ndarray of bool, shape (n,)
+        Which gate flagged each point.
+    """
+    lp, gates = _rescued(sig, var_img, pol, k, on_blob, **kw)
+    return replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"]), gates
 
 
 def _rescued(sig, var_img, pol, k, on_blob, **kw):
