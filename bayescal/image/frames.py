@@ -1,4 +1,6 @@
-"""Sequences of camera frames: a folder of images, a list of files or arrays, a video file.
+"""Sequences of camera frames: a folder of images, a list of files or arrays, a video file;
+one frame's laser pixels as the ring tracker returns them (:class:`TrackedPixels`), and two
+extractions of one frame compared (:func:`agreement`).
 
 :func:`iter_frames` yields each frame with a name (a file's stem, ``frame_00012`` of a
 video, ``frame 12`` of an array), read as :func:`~bayescal.image.read.read_image` reads an
@@ -10,18 +12,22 @@ from __future__ import annotations
 
 import os
 import pathlib
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from ..errors import (
+    ExtractionError,
     InvalidTypeError,
     InvalidValueError,
     MissingDependencyError,
     MissingFileError,
 )
+from .extract import LaserPixels
 from .read import read_image
 
-__all__ = ["iter_frames", "frame_names", "count_frames", "VIDEO_SUFFIXES", "FRAME_SUFFIXES"]
+__all__ = ["iter_frames", "frame_names", "count_frames", "TrackedPixels", "agreement",
+           "VIDEO_SUFFIXES", "FRAME_SUFFIXES"]
 
 #: file suffixes read as video (decoded by imageio's PyAV plugin)
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg")
@@ -56,6 +62,8 @@ def _expand(frames):
                                            (frames.ndim == 3 and frames.shape[2] <= 4)):
         raise InvalidTypeError(f"frames must be a sequence of images, a folder or a video "
                                f"file, got one image of shape {frames.shape}: pass [image]")
+    if isinstance(frames, (list, tuple)):
+        return list(frames)
     try:
         items = iter(frames)
     except TypeError:
@@ -157,3 +165,89 @@ def _video_length(path):
     except Exception:  # PyAV raises several types for a container it cannot measure
         return None
     return int(n) if n is not None and np.isfinite(n) and n > 0 else None
+
+
+@dataclass(frozen=True)
+class TrackedPixels(LaserPixels):
+    """One frame's laser pixels (as :class:`~bayescal.image.extract.LaserPixels`) and how
+    they were found.
+
+    Attributes
+    ----------
+    tracked : bool
+        True: followed from the previous frame's ring; False: the full extractor ran (the
+        first frame, a frame after a refused one, or one where the tracker lost the ring).
+    name : str
+        The frame's name (a file's stem, ``frame 3``).
+    note : str
+        Why the full extractor ran (``first frame``, ``lost: ...``); empty when tracked.
+    error : ExtractionError or None
+        The full extractor's refusal: the frame has no points then (``len == 0``).
+    """
+
+    tracked: bool = False
+    name: str = ""
+    note: str = ""
+    error: ExtractionError | None = None
+
+    @property
+    def refused(self):
+        """bool: the extractor refused the frame (no points; see :attr:`error`)."""
+        return self.error is not None
+
+    @classmethod
+    def of(cls, lp, **kw):
+        """A :class:`LaserPixels` with the tracker's attributes ``kw``."""
+        return cls(**{f.name: getattr(lp, f.name) for f in fields(LaserPixels)}, **kw)
+
+    @classmethod
+    def refusal(cls, error, **kw):
+        """An empty frame that carries the extractor's ``error``."""
+        return cls(pixels=np.zeros((0, 2)), covariance=np.zeros((0, 2, 2)), snr=np.zeros(0),
+                   flagged=np.zeros(0, bool), center=np.full(2, np.nan), error=error, **kw)
+
+
+def agreement(a, b, *, along_px=1.5):
+    """How far two extractions of one frame agree, point by point (the tracker's against
+    the full extractor's, ``docs/images.md``).
+
+    Each point of ``a`` is paired with the point of ``b`` nearest to it if it lies within
+    ``along_px`` of it along the ring; a pair's difference is taken along ``b``'s normal
+    (the direction of its covariance's smaller eigenvalue: along the ring a point's place
+    is the chosen azimuth of its profile, not a measurement).
+
+    Parameters
+    ----------
+    a, b : LaserPixels
+    along_px : float, optional
+
+    Returns
+    -------
+    dict
+        ``pairs`` (points unflagged in both and paired), ``diff_px`` (their differences
+        along the normal, px), ``sd_ratio`` (``a``'s sd along the normal over ``b``'s),
+        ``only_a`` and ``only_b`` (paired points unflagged in one only), ``unpaired``.
+    """
+    if len(a) == 0 or len(b) == 0:
+        return dict(pairs=0, diff_px=np.zeros(0), sd_ratio=np.zeros(0), only_a=0, only_b=0,
+                    unpaired=len(a))
+    db = b.pixels - b.center
+    ab = np.arctan2(db[:, 1], db[:, 0])
+    order = np.argsort(ab)
+    da = a.pixels - b.center
+    aa = np.arctan2(da[:, 1], da[:, 0])
+    pos = np.searchsorted(ab[order], aa)
+    cand = order[np.stack([(pos - 1) % len(b), pos % len(b)], -1)]
+    dist = np.linalg.norm(a.pixels[:, None] - b.pixels[cand], axis=-1)
+    j = cand[np.arange(len(a)), np.argmin(dist, axis=1)]
+    w, v = np.linalg.eigh(b.covariance[j])
+    normal = v[..., 0]
+    delta = a.pixels - b.pixels[j]
+    across = np.abs(np.sum(delta * normal, axis=1))
+    paired = np.hypot(*delta.T) ** 2 - across ** 2 <= along_px ** 2
+    both = paired & ~a.flagged & ~b.flagged[j]
+    return dict(pairs=int(both.sum()), diff_px=across[both],
+                sd_ratio=a.sd_normal[both] / np.sqrt(np.maximum(w[both, 0], 1e-300)),
+                only_a=int(np.sum(paired & ~a.flagged & b.flagged[j])),
+                only_b=int(np.sum(paired & a.flagged & ~b.flagged[j])),
+                unpaired=int(np.sum(~paired)))

@@ -6,7 +6,7 @@ import pytest
 
 import bayescal as bc
 from bayescal.errors import ExtractionError, InvalidTypeError, InvalidValueError, MissingFileError
-from bayescal.image.track import agreement
+from bayescal.image.frames import agreement
 
 #: a 400x300 camera (the paper's sensor scaled: ring radius ~100 px, 360 profiles)
 SHAPE = (300, 400)
