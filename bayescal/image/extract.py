@@ -270,28 +270,13 @@ def measure_ring(sig, var_img, pol, k, on_blob, *, offset_sd=OFFSET_SD, **kw):
     samples ``k``, without the search that found them (the ring tracker's,
     :mod:`bayescal.image.track`, follows the ring from the last frame instead).
 
-    Parameters
-    ----------
-    sig, var_img : ndarray, shape (H, W)
-        The laser's signal and its noise variance per pixel.
-    pol : PolarImage
-        Profiles about the centre (``values``, ``base``, ``high``, ``valid``, ``radii``,
-        ``phi``, ``sub``, ``center`` and ``model``, the ring's robust radius per azimuth);
-        only the samples within 28 of ``k`` are read.
-    k : ndarray of int, shape (n,)
-        Radius index of each profile's peak sample.
-    on_blob : ndarray of bool, shape (n, K)
-        Samples on a saturated blob.
-    offset_sd : float, optional
-    **kw
-        ``min_snr``, ``gate_px``, ``along_sd``, ``var_floor`` (as :func:`extract_laser`),
-        ``flank`` (a laser-off difference) and ``top`` (the clip level, or None).
-
-    Returns
-    -------
-    lp : LaserPixels
-    gates : dict of str to ndarray of bool, shape (n,)
-        Which gate flagged each point.
+    ``sig``, ``var_img`` (H, W): the signal and its noise variance per pixel; ``pol``: the
+    profiles (a :class:`~bayescal.image.ring.PolarImage`'s ``values``, ``base``, ``high``,
+    ``valid``, ``radii``, ``phi``, ``sub``, ``center`` and ``model``, read within 28 samples
+    of ``k``); ``k`` (n,): each profile's peak sample; ``on_blob`` (n, K): samples on a
+    saturated blob; ``kw``: ``min_snr``, ``gate_px``, ``along_sd``, ``var_floor`` (as
+    :func:`extract_laser`), ``flank`` (a laser-off difference), ``top`` (the clip level).
+    Returns the :class:`LaserPixels` and the gates, ``{name: flags (n,)}``.
     """
     lp, gates = _rescued(sig, var_img, pol, k, on_blob, **kw)
     return replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"]), gates
@@ -304,6 +289,7 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
     where they stay off, a third time with a Gaussian through 3 samples instead of 5 (a
     ridge 2 px away pulls a 5-sample fit: the curve ran within 0.5 px of the truth at
     63-81 % of such points, which were 1-3 px off it, on renderer2's lamp rooms)."""
+    kw["fits"] = {}                 # each pass refits only the profiles whose peak moved
     lp, gates, curve = _points(sig, var_img, pol, k, on_blob, **kw)
     off = gates["off curve"] | gates["astray"]
     if not off.any():
@@ -318,13 +304,13 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False, curve=None, narrow=None, top=None):
+            flank=False, curve=None, narrow=None, top=None, fits=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
-    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow, top)
+    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow, top, fits)
     # misfit beyond noise (saturation, texture under the stripe) inflates every variance:
     # the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that matches
     good = np.isfinite(chi2)
@@ -366,15 +352,25 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     return lp, gates, curve
 
 
-def _fit(sig, var_img, pol, k, flank, narrow=None, top=None):
+def _fit(sig, var_img, pol, k, flank, narrow=None, top=None, fits=None):
     """The peaks at samples ``k``: a Gaussian through 5 samples, or through the 3 middle
     ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window);
     where the peak is clipped at ``top`` (the sensor's saturation), the middle of the
-    clipped run (:func:`_plateau`)."""
+    clipped run (:func:`_plateau`). ``fits`` (a dict) keeps the 5-sample fits for the next
+    pass, which refits only the profiles whose peak sample moved (the same numbers)."""
     i = np.arange(len(pol.phi))
     base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
         pol.base[i[:, None], k[:, None] + np.arange(-2, 3)[None]]
-    out = fit_peaks(sig, var_img, pol.center, pol.phi, pol.radii[k], base, sub=pol.sub)[:6]
+    redo = i if not fits else np.nonzero(k != fits["k"])[0]
+    out = [a.copy() for a in fits["out"]] if fits else [None] * 6
+    if len(redo):
+        new = fit_peaks(sig, var_img, pol.center, pol.phi[redo], pol.radii[k[redo]], base[redo],
+                        sub=pol.sub)[:6]
+        out = list(new) if not fits else out
+        for a, b in zip(out, new, strict=True):
+            a[redo] = b
+    if fits is not None:
+        fits.update(k=k.copy(), out=[a.copy() for a in out])
     if narrow is not None and narrow.any():
         j = np.nonzero(narrow)[0]
         sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
