@@ -418,11 +418,12 @@ def _band(sig, c, n, pts, highpass_px, sat, raw, *, margin):
     return pol, k, on_blob
 
 
-def _model(phi, r, strong, *, step=4):
+def _model(phi, r, strong, *, points=120):
     """The full extractor's robust Fourier model of the ring's path
-    (:func:`~bayescal.image.ring.ring_model`, order 6), fitted to every ``step``-th profile
-    and interpolated between them (it is smooth over 2 degrees; its gates allow 2-3 px)."""
-    sel = slice(None, None, step)
+    (:func:`~bayescal.image.ring.ring_model`, order 6), fitted to about ``points`` evenly
+    spaced profiles and interpolated between them (it is smooth over 3 degrees; the gates
+    that read it allow 2-3 px)."""
+    sel = slice(None, None, max(1, len(phi) // points))
     model, _ = ring_model(phi[sel], r[sel], strong[sel].astype(float))
     return np.interp(phi, phi[sel], model, period=2 * np.pi)
 
