@@ -26,7 +26,8 @@ from ..errors import (
 from .extract import LaserPixels
 from .read import read_image
 
-__all__ = ["iter_frames", "frame_names", "count_frames", "TrackedPixels", "agreement",
+__all__ = ["iter_frames", "frame_names", "count_frames", "as_frame", "per_frame",
+           "TrackedPixels", "agreement",
            "VIDEO_SUFFIXES", "FRAME_SUFFIXES"]
 
 #: file suffixes read as video (decoded by imageio's PyAV plugin)
@@ -133,6 +134,18 @@ def iter_frames(frames, *, channel=0):
                 raise InvalidValueError(f"frame {i} must be an image of shape (H, W) or "
                                         f"(H, W, C), got shape {arr.shape}")
             yield f"frame {i}", arr
+
+
+def as_frame(image):
+    """An image given as a path, read as the file holds it; an array or None as it is."""
+    return read_image(image, raw=True) if _is_pathlike(image) else image
+
+
+def per_frame(image):
+    """One image per frame: None or one image (or path) for every frame, or the items of a
+    sequence of them."""
+    single = image is None or isinstance(image, np.ndarray) or _is_pathlike(image)
+    yield from iter(lambda: image, object()) if single else image
 
 
 def _imageio_video():

@@ -84,7 +84,7 @@ def as_gray(image, *, channel=0, name="image"):
         raise InvalidValueError(f"{name} must have shape (H, W) or (H, W, C) with H, W >= 16, "
                                 f"got {arr.shape}")
     out = arr.astype(float)
-    if not np.all(np.isfinite(out)):
+    if not np.issubdtype(arr.dtype, np.integer) and not np.all(np.isfinite(out)):
         raise InvalidValueError(f"{name} contains NaN or infinite values")
     return out
 

@@ -7,7 +7,8 @@ tracker takes the previous frame's ring as its prior: it looks for the ring with
 band of :data:`REACH` px about the moved ring only and measures the points there with the
 full extractor's own peak fits, gates and covariances
 (:func:`~bayescal.image.extract.measure_ring`), the noise fitted on every
-:data:`NOISE_ROW_STEP`-th row. The first frame, and any frame where the ring is lost, goes
+:data:`NOISE_PIXELS` px of evenly spaced rows. The first frame, and any frame where the
+ring is lost, goes
 through the full extractor; a frame it refuses comes back empty, with the error, and the
 sequence goes on (``docs/images.md``).
 """
@@ -22,14 +23,14 @@ from .._validation import check_positive
 from ..errors import BayescalError, ExtractionError, InvalidValueError
 from .doubt import blob_mask, check_colour, check_ring, mirror_disc
 from .extract import OFFSET_SD, extract_laser, measure_ring
-from .frames import TrackedPixels, iter_frames
+from .frames import TrackedPixels, as_frame, iter_frames, per_frame
 from .locate import BLOB_MARGIN
 from .noise import noise_model
-from .read import as_gray, demosaiced_blur, read_image
+from .read import as_gray, demosaiced_blur
 from .ring import R_MIN, circle_fit, ridge_near, ring_model
 
 __all__ = ["LaserTracker", "track_laser", "BAND_PX", "COARSE_RAYS", "REACH",
-           "NOISE_ROW_STEP", "KEEP_MIN", "FOUND_MIN", "SNR_DROP"]
+           "NOISE_PIXELS", "KEEP_MIN", "FOUND_MIN", "SNR_DROP"]
 
 #: how far (px) the ring is looked for about the previous frame's, along the rays
 BAND_PX = 8
@@ -38,8 +39,10 @@ COARSE_RAYS = 180
 #: samples read either side of the moved ring on each final profile: the search for the
 #: peak (3 + 2), the clutter term's reach past it (16) and the running median's half (7)
 REACH = 28
-#: the noise model is fitted on every NOISE_ROW_STEP-th row (each with its two neighbours)
-NOISE_ROW_STEP = 16
+#: the noise model is fitted on evenly spaced rows (each with its two neighbours) of about
+#: NOISE_PIXELS px in all (every 16th row of 960x720): its sd within 0.97-1.13 of the whole
+#: image's at the ring's grey levels, 0.76-1.0 at black, over 12 images of three renderers
+NOISE_PIXELS = 43000
 #: the fraction of azimuths a followed ring must keep; below it the full extractor runs,
 #: whose "no ring stands out" test (more than 20 % flagged) needs the runner-up path
 KEEP_MIN = 0.8
@@ -64,12 +67,11 @@ class _Band:
     :class:`~bayescal.image.ring.PolarImage` that :func:`measure_ring` reads, NaN (values,
     base), 0 (high) or False (valid) off the band."""
 
-    def __init__(self, center, phi, radii, sub, n_samples):
-        self.center, self.phi, self.radii, self.sub = center, phi, radii, sub
+    def __init__(self, center, phi, radii, sub):
+        self.center, self.phi, self.radii, self.sub, self.model = center, phi, radii, sub, None
         shape = (len(phi), len(radii))
         self.values, self.base = np.full(shape, np.nan), np.full(shape, np.nan)
         self.high, self.valid = np.zeros(shape), np.zeros(shape, bool)
-        self.model = None
 
 
 class LaserTracker:
@@ -95,7 +97,8 @@ highpass_px, check, offset_sd
         self.background = background
         self.options = dict(center=center, channel=channel, n_azimuth=n_azimuth,
                             min_snr=min_snr, gate_px=gate_px, along_sd=along_sd,
-                            var_floor=var_floor, radius=radius, highpass_px=highpass_px,
+                            var_floor=var_floor, highpass_px=highpass_px,
+                            radius=None if radius is None else tuple(map(float, np.ravel(radius))),
                             check=check, offset_sd=offset_sd)
         if center is not None:
             c = np.asarray(center, dtype=float)
@@ -204,9 +207,9 @@ highpass_px, check, offset_sd
             return
         cc, RR, _ = circle_fit(lp.pixels[ok])
         try:
-            check_ring(lp.flagged, cc, RR, mirror=self._mirror, expected=_radius(self.options),
+            check_ring(lp.flagged, cc, RR, mirror=self._mirror, expected=self.options["radius"],
                        closure=0, gains=(np.nan, np.nan))
-            check_colour(image, _read(bg), self.options["channel"], lp.pixels[ok], lp.center)
+            check_colour(image, as_frame(bg), self.options["channel"], lp.pixels[ok], lp.center)
         except ExtractionError as exc:
             raise _Lost(exc.reason) from None
 
@@ -218,13 +221,14 @@ highpass_px, check, offset_sd
         box = (slice(max(0, int(c0[1] - reach)), min(H, int(c0[1] + reach) + 1)),
                slice(max(0, int(c0[0] - reach)), min(W, int(c0[0] + reach) + 1)))
         top = _top(image, gray)
-        sat = gray >= top
+        sat = _Saturated([(gray, top)])
         on = _smoothed(gray, self._blur, box)
-        rows = np.arange(NOISE_ROW_STEP // 2, H - 4, NOISE_ROW_STEP)
+        step = max(2, int(round(H * W / NOISE_PIXELS)))
+        rows = np.arange(step // 2 + 4, H - 4, step)
         if bg is None:
             model = noise_model(_strips(gray, rows, self._blur), rows=_mid(rows))
             return on, _Variance(model, on), sat, gray
-        bg = _read(bg)
+        bg = as_frame(bg)
         bgg = as_gray(bg, channel=self.options["channel"], name="background")
         if bgg.shape != gray.shape:
             raise InvalidValueError(f"background must have the image's shape {gray.shape}, "
@@ -232,7 +236,8 @@ highpass_px, check, offset_sd
         off = _smoothed(bgg, self._blur, box)
         s_on, s_off = _strips(gray, rows, self._blur), _strips(bgg, rows, self._blur)
         model = noise_model(s_on - s_off, levels=0.5 * (s_on + s_off), rows=_mid(rows))
-        return on - off, _Variance(model, 0.5 * (on + off)), sat | (bgg >= _top(bg, bgg)), gray
+        sat.images.append((bgg, _top(bg, bgg)))
+        return on - off, _Variance(model, 0.5 * (on + off)), sat, gray
 
 
 class _Variance:
@@ -250,15 +255,15 @@ class _Variance:
         return np.asarray(self.model(self.level), dtype=dtype)
 
 
-def _radius(options):
-    r = options["radius"]
-    return None if r is None else tuple(float(x) for x in np.ravel(r))
+class _Saturated:
+    """Whether each pixel is saturated in one of ``images`` (pairs of a grey image and its
+    saturation level), computed where it is read."""
 
+    def __init__(self, images):
+        self.images, self.shape = images, images[0][0].shape
 
-def _read(bg):
-    """A laser-off image given as a path, read; an array or None as it is."""
-    return read_image(bg, raw=True) if isinstance(bg, (str, bytes)) or hasattr(
-        bg, "__fspath__") else bg
+    def __getitem__(self, key):
+        return np.logical_or.reduce([img[key] >= top for img, top in self.images])
 
 
 def _top(image, gray):
@@ -396,7 +401,7 @@ def _band(sig, c, n, pts, highpass_px, sat, raw, *, margin):
     scale = median_filter(1.4826 * np.median(np.abs(sm), axis=1), size=9, mode="wrap")
     z = sm[i, path] / np.maximum(scale, 1e-9)
     k0 = int(lo.min())
-    pol = _Band(np.asarray(c, float), phi, np.arange(k0, lo.max() + L, dtype=float), sub, L)
+    pol = _Band(np.asarray(c, float), phi, np.arange(k0, lo.max() + L, dtype=float), sub)
     cols = lo[:, None] - k0 + np.arange(L)[None]
     rows = i[:, None]
     flat = (rows * len(pol.radii) + cols).ravel()
@@ -457,13 +462,6 @@ def _has_core(sat, vv, uu, radius=2):
     return bool(np.any(np.all(sat[rr, cc], axis=1)))
 
 
-def _backgrounds(background):
-    """One laser-off image per frame: None or one image for every frame, or a sequence's."""
-    single = background is None or isinstance(background, (np.ndarray, str, bytes))
-    yield from iter(lambda: background, object()) if single or hasattr(
-        background, "__fspath__") else background
-
-
 def track_laser(frames, *, background=None, **options):
     """The laser pixels of every frame of a sequence, each frame's search seeded by the
     previous frame's ring.
@@ -496,6 +494,6 @@ def track_laser(frames, *, background=None, **options):
     [False, True, True]
     """
     tracker = LaserTracker(**options)
-    bgs = _backgrounds(background)
-    return [tracker(img, background=_read(next(bgs)), name=name)
+    bgs = per_frame(background)
+    return [tracker(img, background=as_frame(next(bgs)), name=name)
             for name, img in iter_frames(frames, channel=tracker.options["channel"])]
