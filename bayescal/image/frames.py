@@ -10,6 +10,7 @@ through imageio's PyAV plugin, an optional extra (``pip install bayescal[video]`
 
 from __future__ import annotations
 
+import itertools
 import os
 import pathlib
 from dataclasses import dataclass, fields
@@ -145,7 +146,7 @@ def per_frame(image):
     """One image per frame: None or one image (or path) for every frame, or the items of a
     sequence of them."""
     single = image is None or isinstance(image, np.ndarray) or _is_pathlike(image)
-    yield from iter(lambda: image, object()) if single else image
+    yield from itertools.repeat(image) if single else image
 
 
 def _imageio_video():

@@ -142,3 +142,23 @@ def test_noise_model_on_a_sample_of_rows():
         np.testing.assert_allclose(model(np.array([50.0, 200.0])), [6.5, 14.0], rtol=0.15)
     full, part = noise_model(img), noise_model(img, rows=np.arange(1, 719))
     np.testing.assert_allclose(part(level[0, ::97]), full(level[0, ::97]), rtol=0.01)
+
+
+def test_a_laser_off_image_and_colour_frames():
+    # a still scene with its laser-off image, and the same frames in colour (the laser red):
+    # followed, and the same points as the full extractor on the same rays
+    img, truth = bc.render_image(P, bc.room_walls(2500), shape=SHAPE, with_background=True,
+                                 rng=4)
+    opts = dict(center=(200.0, 150.0), n_azimuth=360)
+    out = bc.track_laser([img, img], background=truth.background, **opts)
+    assert out[1].tracked
+    a = agreement(out[1], bc.extract_laser(img, background=truth.background, **opts))
+    assert np.mean(a["diff_px"] <= 0.1) >= 0.99
+    rgb = np.stack([img, img // 3, img // 5], axis=-1)
+    out = bc.track_laser([rgb, rgb], **opts)
+    assert out[1].tracked
+    a = agreement(out[1], bc.extract_laser(rgb, **opts))
+    assert np.mean(a["diff_px"] <= 0.1) >= 0.99
+    white = np.stack([img, img, np.clip(img * 0.9, 0, 255).astype(np.uint8)], axis=-1)
+    out = bc.track_laser([rgb, white], **opts)     # the ring turns white: no laser
+    assert not out[1].tracked and out[1].refused
