@@ -140,7 +140,7 @@ def _summary(name, size, recs):
                     f"{_ms(np.median(full_s))} | {_ms(np.max(full_s))} | <= {FULL_TARGET_MS:g} "
                     f"| {'PASS' if ok else 'FAIL'} | {len(full_s)} frames |")
     if not tracked:
-        why = "; ".join(sorted({r['full'].reason[:80] for r in refused})) if refused else ""
+        why = "; ".join(sorted({r['full'].reason.split(":")[0] for r in refused}))
         rows.append(f"| {name} | {w}x{h} | tracker | - | - | <= {TARGETS.get(size, 50):g} | "
                     f"not timed | {n_note}: nothing to follow ({why}) |")
         return rows, notes
@@ -162,7 +162,7 @@ def _summary(name, size, recs):
     everything = np.array([r["track_s"] for r in recs if np.isfinite(r["track_s"])])
     notes.append(f"{name} {w}x{h}: mean over every frame, fallbacks included, "
                  f"{_ms(np.mean(everything))} ms; {n_note}")
-    notes += _agreement_notes(name, tracked)
+    notes += _agreement_notes(f"{name} {w}x{h}", tracked)
     return rows, notes
 
 
@@ -258,9 +258,9 @@ def main(argv=None):
                 r, n = _summary(f"real, {pipe.name}/ring_*.png", (960, 720), recs)
                 rows += r
                 notes += n
-                notes.append("real frames refused by the full extractor: " + ", ".join(
-                    f"{r['name']} ({r['full'].reason[:60]})" for r in recs
-                    if isinstance(r["full"], Exception)) or "none")
+                notes.append("real frames refused by the full extractor: " + (", ".join(
+                    f"{r['name']} ({r['full'].reason.split(':')[0]})" for r in recs
+                    if isinstance(r["full"], Exception)) or "none"))
         else:
             notes.append("real frames: no folder given (or not found); rows skipped")
     load1 = os.getloadavg()[0]
