@@ -15,7 +15,7 @@ from .errors import BayescalError, BayescalWarning, DegenerateInputError, Extrac
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
-from .image.chessboard import find_chessboard
+from .image.chessboard import board_extent, find_chessboard
 from .image.extract import LaserPixels, extract_laser
 from .image.frames import TrackedPixels
 from .image.read import read_image
@@ -119,6 +119,7 @@ __all__ = [
     "BoardView",
     "board_points",
     "find_chessboard",
+    "board_extent",
     "render_board",
     "load_views",
     "write_views",

@@ -1,6 +1,15 @@
 """Helpers shared by tests in several folders (``tests/`` is on ``sys.path`` through
 ``conftest.py``, so test modules import this as ``helpers``)."""
 
+import contextlib
+import io
+import os
+import pathlib
+import subprocess
+import sys
+import types
+import warnings
+
 import numpy as np
 
 
@@ -99,3 +108,38 @@ def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAM
         paths.append(path)
         truths.append(truth)
     return paths, truths
+
+
+def run_cli(*args, cwd, env=None, timeout=600):
+    """``bayescal ARGS`` in ``cwd``; returns ``returncode``, ``stdout`` and ``stderr`` like a
+    finished subprocess.
+
+    Run in this process (``bayescal.cli.main.main``), with the warning filters a fresh
+    interpreter starts with: an interpreter and bayescal's imports per command cost 1-2 s
+    of CPU each, most of the command-line tests' time. With ``env`` (variables the command
+    reads at start-up) it runs as ``python -m bayescal`` in a subprocess instead; the
+    console entry point's own exit path (Ctrl-C, ``os._exit``) is tested by subprocess
+    where it matters."""
+    if env is not None:
+        import bayescal
+
+        root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
+        full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **env)
+        return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
+                              capture_output=True, text=True, env=full_env, timeout=timeout)
+    from bayescal.cli.main import main
+
+    out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+                warnings.catch_warnings():
+            warnings.resetwarnings()          # the filters of a fresh interpreter
+            warnings.simplefilter("default")
+            for cat in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                        ResourceWarning):
+                warnings.filterwarnings("ignore", category=cat)
+            code = main([str(a) for a in args])
+    finally:
+        os.chdir(here)
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import Failure
 from ..report.document import Document, write_document
 from .jobs import CalibrateJob
+from .matching import IMAGE_TRUTH_NOTE, true_points
 from .runs import run_calibrate, write_laser_pixels, write_simulation
 
 __all__ = ["run_demo", "run_study", "off_design_sensor", "DEMO_ROOM", "OFF_NOMINAL_SCALE"]
@@ -60,6 +61,21 @@ def _simulate(job):
     return simulate_room(truth, n_points=job.n_points, rng=rng, **DEMO_ROOM)
 
 
+@contextlib.contextmanager
+def _said_as_final(staged, final):
+    """Warnings given inside: the staged folder named as the final one, and the options the
+    demo chose (``--walls``: its floor plan) as what they are, not as the user's."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        text = str(w.message).replace(staged, final).replace(
+            "with --walls", "with a floor plan (the demo's data/walls.csv)")
+        warnings.warn_explicit(text, w.category, w.filename, w.lineno)
+
+
 def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
     """One calibration into ``root/stage``; stage "floorplan" calibrates from walls.csv.
 
@@ -73,13 +89,13 @@ def _calibrate_one(job, root, method, *, stage=None, files=None, figures=()):
              else {"calibration": data / "calibration.npz"})
     files = files or {"data": data / "laser.csv", "truth": data / "truth.json", **scene}
     said = io.StringIO()
-    with contextlib.redirect_stdout(said):      # its notes name the staged files
+    staged, final = str(root.path.resolve()), str(job.out.resolve())
+    with contextlib.redirect_stdout(said), _said_as_final(staged, str(job.out)):
         cjob = CalibrateJob.build(method=method, seed=job.seed, max_steps=job.max_steps,
                                   no_progress=not job.progress,
                                   allow_unconverged=job.allow_unconverged,
                                   out=job.out / stage, force=True,
                                   title=f"bayescal demo: {stage}", **files)
-    staged, final = str(root.path.resolve()), str(job.out.resolve())
     print(said.getvalue().replace(staged, str(job.out)), end="")
     cjob = dataclasses.replace(cjob, inputs={k: v.replace(staged, final)
                                              for k, v in cjob.inputs.items()},
@@ -139,23 +155,10 @@ def _image_inputs(job, root, ds):
                     "sd across the ring; red crosses: flagged, not used)", overlay)]
 
 
-#: how the image stage's truth points are made (in its report)
-IMAGE_TRUTH_NOTE = (
-    "Truth of the image stage: the extracted pixels are not the simulated points, so each "
-    "pixel's true laser point is the renderer's true centre line (3600 azimuths, linearly "
-    "interpolated) at the pixel's azimuth under the true sensor; the error is the distance "
-    "from the calibrated point to it (it includes the extraction error).")
-
-
 def _true_points(params, pixels, ring):
     """The true laser point (N, 3), mm, at each pixel's azimuth under the true sensor,
     interpolated on the renderer's true centre line ``ring`` (a RenderTruth)."""
-    from ..sensor.laser import pixel_azimuth
-
-    az = pixel_azimuth(params, pixels)
-    order = np.argsort(ring.azimuth)
-    a, p = ring.azimuth[order], ring.points[order]
-    return np.stack([np.interp(az, a, p[:, j], period=2 * np.pi) for j in range(3)], axis=-1)
+    return true_points(params, pixels, ring.azimuth, ring.points)
 
 
 def _index(out, rows, ds):

@@ -29,8 +29,9 @@ from ..checks.datafile import (
 from ..errors import InvalidTypeError, UsageError
 from ..io.outputs import check_out
 from ..sensor.parameters import CAMERA_PARAM_NAMES
+from . import matching as mt
 from . import options as op
-from .design import image_size_setting, note_design, note_flagged, read_nominal
+from .design import note_design, note_flagged, read_nominal
 from .lasermodel import camera_nominal, model_setting, nominal_and_prior, read_camera
 from .pixelcov import pixel_cov_setting, ring_corr_setting
 
@@ -219,13 +220,8 @@ class CalibrateJob:
         if method not in op.METHODS:
             raise UsageError(f"--method {method!r}; expected one of {', '.join(op.METHODS)}")
         given = read_nominal(o["nominal"])
-        camera = None
-        if o["camera"] is not None:         # its image size is the data's: read it first
-            camera, camera_size = read_camera(o["camera"])
-            o["image_size"] = camera_size or o["image_size"]
-        data, calib, plan, size = cls._read(o, given)
-        if camera is not None and camera_size:     # say where the size came from
-            size = (size[0], f"--camera {o['camera']}")
+        camera, camera_size = (None, None) if o["camera"] is None else read_camera(o["camera"])
+        data, calib, plan, size = cls._read(o, given, (o["camera"], camera_size))
         nominal, prior, derived = nominal_and_prior(given, o["prior"], image_size=size[0],
                                                     data=data, plan=plan, with_derived=True)
         if camera is not None:              # its intrinsics: the nominal camera and prior
@@ -233,7 +229,7 @@ class CalibrateJob:
             derived = {k: v for k, v in derived.items() if k not in CAMERA_PARAM_NAMES}
         note_design(size, derived, nominal)
         model, note = model_setting(o["model"], method=method, plan=plan, prior_specs=o["prior"])
-        truth = load_truth(o["truth"], None if data is None else data.n_points)
+        truth = mt.truth_for(o["truth"], data)
         spx, spx_how = (sigma_px_setting(o["sigma_px"], data) if data is not None
                         else (None, "not used"))
         if data is not None and data.pixel_cov is not None:
@@ -241,7 +237,7 @@ class CalibrateJob:
         ssc, ssc_how = ((None, "not used") if data is None or data.approx_points is None
                         else sigma_scene_setting(o["sigma_scene"], data))
         if data is not None and method != "sequential":
-            _check_model_input(data, plan, nominal, spx, ssc)
+            _check_model_input(data, plan, nominal, spx, ssc, o["camera"])
         dups = warn_duplicates(data) if data is not None and method != "sequential" else []
         names = ("data", "points", "walls", "calibration", "calibration_laser", "nominal",
                  "truth", "camera")
@@ -259,9 +255,10 @@ class CalibrateJob:
                    ring_corr=ring_corr_setting(o["ring_corr"], method, plan))
 
     @staticmethod
-    def _read(o, given):
+    def _read(o, given, camera):
         """(LaserData or None, CalibrationData or None, FloorPlan or None, (image size,
-        where it came from)), all checked; ``given`` the design values of ``--nominal``."""
+        where it came from)), all checked; ``given`` the design values of ``--nominal``,
+        ``camera`` (``--camera``, its image size or None)."""
         from ..io.data import (
             check_pixels_in_image,
             check_projection_domain,
@@ -285,7 +282,7 @@ class CalibrateJob:
             data = load_laser_data(o["data"], o["points"],
                                    need_points=method != "sequential" and plan is None)
             note_flagged(data.pixel_table, data.n_points, "calibration")
-        size = image_size_setting(o["image_size"], data)
+        size = mt.agreed_image_size(o["image_size"], data, camera)
         if data is not None:
             check_pixels_in_image(data.pixels, data.pixel_table, image_size=size[0],
                                   margin=o["image_margin"])
@@ -319,7 +316,7 @@ def _read_plan(o):
     return plan
 
 
-def _check_model_input(data, plan, nominal, spx, ssc):
+def _check_model_input(data, plan, nominal, spx, ssc, camera=None):
     """Build the likelihood once to refuse input the model cannot use (exit 2)."""
     where = ", ".join(map(str, data.paths))
     try:
@@ -333,7 +330,7 @@ def _check_model_input(data, plan, nominal, spx, ssc):
             LaserLikelihood(data.pixels, data.approx_points, sigma_px=spx, sigma_scene=ssc)
     except (TypeError, ValueError) as exc:
         raise UsageError(f"{where}: {exc}") from None
-    check_geometry(data, center=(nominal.u0, nominal.v0))
+    mt.centred_geometry(check_geometry, data, nominal, camera)
 
 
 def _load_run(run):
@@ -357,6 +354,7 @@ class ReconstructJob:
     out: pathlib.Path
     force: bool
     run: pathlib.Path
+    plain_noise: object = None      # RingNoise of frames without covariances, or None
 
     @property
     def pixels(self):
@@ -367,7 +365,6 @@ class ReconstructJob:
     def build(cls, **options):
         """Validated job (:data:`~bayescal.cli.options.RECONSTRUCT_OPTIONS`); every frame
         is read and checked before anything is written."""
-        from ..image.extract import IMAGE_SUFFIXES, laser_frame
         from ..io.data import check_pixels_in_image, load_pixels, pixel_covariance
 
         o = _opts(op.RECONSTRUCT_OPTIONS, options)
@@ -381,20 +378,21 @@ class ReconstructJob:
                              "; each frame's point cloud is named after its file")
         frames = []
         for path in paths:
-            if pathlib.Path(path).suffix.lower() in IMAGE_SUFFIXES:
-                frames.append(laser_frame(pathlib.Path(path),
+            if pathlib.Path(path).suffix.lower() in mt.FRAME_IMAGE_SUFFIXES:
+                frames.append(mt.image_frame(path, o["image_size"], run, info,
                                           center=(result.params.u0, result.params.v0)))
                 continue
             pixels, table = load_pixels(path)
             note_flagged(table, len(pixels), "reconstruction")
-            size = (o["image_size"] or table.meta.get("image_size")
-                    or tuple(info.get("image_size") or ()) or None)
-            size, _ = image_size_setting(size, None)
+            size = mt.frame_image_size(o["image_size"], table, run, info)
             check_pixels_in_image(pixels, table, image_size=size, margin=o["image_margin"])
             frames.append((pathlib.Path(path), pixels, pixel_covariance(table)))
+        noise = (mt.plain_pixel_noise(result, info, run, o["sigma_px"])
+                 if any(f[2] is None for f in frames) else None)
         check_out(o["out"], force=o["force"], inputs=[*paths, run])
         return cls(frames=tuple(frames), result=result, sigma_px=o["sigma_px"],
-                   seed=o["seed"], out=pathlib.Path(o["out"]), force=o["force"], run=run)
+                   seed=o["seed"], out=pathlib.Path(o["out"]), force=o["force"], run=run,
+                   plain_noise=noise)
 
 
 @dataclass(frozen=True)
@@ -433,7 +431,7 @@ class ReportJob:
                                    need_points=not sequential and plan is None)
         if plan is not None:
             data = replace(data, approx_points=None, sigma_scene=None, point_table=None)
-        truth = load_truth(o["truth"] or ins.get("truth"), None if data is None else data.n_points)
+        truth = mt.truth_for(o["truth"] or ins.get("truth"), data)
         check_out(o["out"], force=o["force"], inputs=[run] + ([] if data is None else data.paths))
         return cls(run=run, result=result, run_info=info, data=data, truth=truth,
                    out=pathlib.Path(o["out"]), force=o["force"], plan=plan)

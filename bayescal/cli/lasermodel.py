@@ -221,7 +221,7 @@ def camera_setting(path, nominal, prior_specs):
 
     Its intrinsics become the nominal camera (``phi``, ``h``, ``beta`` stay those of
     ``--nominal`` or the paper's) and, with their covariance, the camera's prior; its
-    image size replaces ``--image-size``.
+    image size must be that of the data and ``--image-size``.
 
     Parameters
     ----------
@@ -253,7 +253,8 @@ def camera_setting(path, nominal, prior_specs):
 
 
 def read_camera(path):
-    """The camera result of ``--camera`` and its image size (or None).
+    """The camera result of ``--camera`` and its image size (or None: not recorded, or only
+    guessed from the extent of corners without one).
 
     Raises
     ------
@@ -276,6 +277,8 @@ def read_camera(path):
     except (TypeError, ValueError, KeyError) as exc:
         raise UsageError(f"--camera {p}: not a usable camera calibration ({exc})") from None
     size = getattr(camera, "image_size", None)
+    if camera.info.get("image_size_from") == "corners":    # a guess from the corners' extent
+        size = None
     return camera, None if size is None else tuple(int(s) for s in size)
 
 

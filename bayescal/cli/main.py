@@ -52,8 +52,9 @@ class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
     def _get_help_string(self, action):
         if action.default is None or action.default is False or action.default is argparse.SUPPRESS:
             return action.help
-        if isinstance(action.default, tuple):
-            return action.help + " (default: " + "x".join(map(str, action.default)) + ")"
+        if isinstance(action.default, tuple):       # WxH sizes; pairs of numbers (--tilt)
+            sep = "x" if action.metavar in ("WxH", "CxR") else " "
+            return action.help + " (default: " + sep.join(f"{v:g}" for v in action.default) + ")"
         return super()._get_help_string(action)
 
     def _fill_text(self, text, width, indent):

@@ -401,12 +401,12 @@ RECONSTRUCT_OPTIONS = (
     Opt(("pixels",), {"type": input_file, "nargs": "+", "metavar": "PIXELS",
                       "help": "one file per frame: a CSV or NPZ with columns u, v (px) and "
                               "optionally cov_uu, cov_uv, cov_vv (px^2, per-pixel noise), or "
-                              "an image (PNG, TIFF, JPEG) run through the laser extractor"}),
+                              "an image (PNG, TIFF, JPEG, PGM) run through the laser extractor"}),
     Opt(("--run",), {"type": input_folder, "required": True,
                      "help": "output folder of 'bayescal calibrate'"}),
-    Opt(("--sigma-px",), {"type": nonneg_float, "help": "least-squares runs: pixel noise of "
-                          "the new pixels, px, 0 for the parameter part alone (default: the "
-                          "run's); bayes runs use the posterior's pixel noise"}),
+    Opt(("--sigma-px",), {"type": nonneg_float, "help": "pixel noise of pixels without cov_* "
+                          "columns, px, 0: parameters alone (default: the run's; after "
+                          "covariances, their typical noise times the run's scale)"}),
     *_IMAGE, *_out("reconstruction"), _SEED,
 )
 

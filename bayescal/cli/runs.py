@@ -14,6 +14,7 @@ from ..errors import DegenerateInputError, ExtractionError, Failure, UsageError
 from ..io.runinfo import POSTERIOR_FILE, RESULT_FILE, RUN_FILE, run_record
 from ..io.tables import OFFSET_SD_KEY, image_size_line, offset_sd_line
 from ..sensor.pose import POSE_NAMES
+from . import matching as mt
 from .options import EXTRACTION_ADVICE, cli_words
 from .pixelcov import uses_pixel_cov
 
@@ -285,8 +286,9 @@ def calibrate_result(job, choice=None):
                 else _nothing():
             return _calibrate(job, choice)
     except DegenerateInputError as exc:         # input that cannot calibrate: exit 2
-        where = f"{data.pixel_table.path}: " if data is not None else ""
-        raise UsageError(f"{where}{exc}") from None
+        hint = mt.camera_hint(data, job.nominal, job.inputs.get("camera"))
+        raise UsageError(f"{data.pixel_table.path}: {exc}{hint}" if data is not None
+                         else str(exc)) from None
 
 
 def _calibrate(job, choice):
@@ -431,6 +433,7 @@ def run_reconstruct(job, folder):
     out, result = folder.path, job.result
     recon = result.reconstructor(rng=job.seed) if hasattr(result, "param_samples") \
         else result.reconstructor(sigma_px=job.sigma_px)
+    mt.say_pixel_noise(job)
     rows, single = [], len(job.frames) == 1
     frames = job.frames
     if not single:
@@ -439,13 +442,13 @@ def run_reconstruct(job, folder):
         frames = tqdm(frames, desc="frames", unit="frame", file=sys.stderr)
     for path, pixels, pixel_cov in frames:
         t0 = time.perf_counter()
-        rec = recon(pixels, pixel_cov=pixel_cov)
+        rec = recon(pixels, pixel_cov=mt.frame_noise(job, pixel_cov))
         seconds = time.perf_counter() - t0
         name = "reconstruction" if single else path.stem
         folder.add(rec.save(out / f"{name}.ply"))
         sd = np.sqrt(np.maximum(np.diagonal(rec.covariance, axis1=1, axis2=2), 0))
         rows.append((str(path), len(pixels), int((~rec.valid).sum()),
-                     float(np.nanmedian(np.linalg.norm(sd, axis=1))), seconds, f"{name}.ply"))
+                     mt.quiet_median(np.linalg.norm(sd, axis=1)), seconds, f"{name}.ply"))
     if single:
         mean, cov = rec
         folder.add(points_csv(out / "reconstruction.csv", mean, cov,
@@ -466,7 +469,7 @@ def run_reconstruct(job, folder):
     method = "bayes" if hasattr(result, "param_samples") else getattr(result, "method", "")
     print(f"reconstructed {sum(r[1] for r in rows)} pixels in {len(rows)} frame(s) with the "
           f"{method} calibration of {job.run}; median sd "
-          f"{np.nanmedian([r[3] for r in rows]):.3g} mm")
+          f"{mt.quiet_median([r[3] for r in rows]):.3g} mm")
     written = (["reconstruction.csv", "reconstruction.ply", "reconstruction.png"] if single
                else [r[5] for r in rows[:3]] + (["..."] if len(rows) > 3 else [])
                + ["frames.csv"])

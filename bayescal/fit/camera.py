@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from ..errors import DegenerateInputError, InvalidValueError
+from ..errors import BayescalWarning, DegenerateInputError, InvalidValueError
 from ..image.views import as_views
 from ..likelihood.boards import NOISE_MODELS, BoardLikelihood
 from ..results.camera import CameraResult
@@ -167,19 +167,21 @@ def _noise_hessian(lik, gram, eta, model, h=1e-3):
 
 
 def _image_size(views, image_size):
+    """``((width, height), how)``: given, the views' own, or (``"corners"``) a guess from the
+    corners' extent that a camera file then does not record as the image's size."""
     if image_size is not None:
         size = tuple(int(s) for s in image_size)
         if len(size) != 2 or min(size) <= 0:
             raise InvalidValueError(f"image_size must be (width, height) > 0, got {image_size!r}")
-        return size
+        return size, "given"
     sizes = {v.image_size for v in views if v.image_size is not None}
     if len(sizes) > 1:
         raise InvalidValueError(f"views come from images of different sizes {sorted(sizes)}; "
                                 "pass image_size")
     if sizes:
-        return sizes.pop()
+        return sizes.pop(), "views"
     px = np.concatenate([v.pixels for v in views])
-    return (int(np.ceil(px[:, 0].max())) + 1, int(np.ceil(px[:, 1].max())) + 1)
+    return (int(np.ceil(px[:, 0].max())) + 1, int(np.ceil(px[:, 1].max())) + 1), "corners"
 
 
 def _fit_noise_loop(lik, k, poses, model, max_outer):
@@ -242,7 +244,7 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
         raise InvalidValueError(f"noise must be one of {sorted(NOISE_MODELS)}, got {noise!r}")
     if estimator not in ("weighted", "gls"):
         raise InvalidValueError(f"estimator must be 'weighted' or 'gls', got {estimator!r}")
-    size = _image_size(views, image_size)
+    size, size_how = _image_size(views, image_size)
     lik = BoardLikelihood(views, degree=degree)
     fixed = None
     if init is not None:
@@ -257,14 +259,32 @@ def calibrate_camera(views, *, image_size=None, noise="view-systematic", degree=
         if noise == "view-systematic" and estimator == "weighted":
             k, poses, eta_w, P = _fit_noise_loop(lik, k0, poses0, "per-view", max_outer)
             eta, _ = estimate_noise(lik, k, poses, np.append(eta_w, np.log(0.1)), noise)
-            return _result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w)
+            return _checked(_result(lik, k, poses, eta, P, noise, size, weights_eta=eta_w),
+                            size_how)
         k, poses, eta, P = _fit_noise_loop(lik, k0, poses0, noise, max_outer)
-        return _result(lik, k, poses, eta, P, noise, size)
+        return _checked(_result(lik, k, poses, eta, P, noise, size), size_how)
     except np.linalg.LinAlgError as exc:    # a singular normal matrix: the views are degenerate
         raise DegenerateInputError(
             f"the {lik.K} views do not determine the camera (a singular normal matrix: {exc}); "
             "use more views, boards at several distances and tilts, or check the corners"
         ) from None
+
+
+def _checked(result, size_how):
+    """Record where the image size came from (``info["image_size_from"]``: ``"given"``,
+    ``"views"`` or ``"corners"``, their extent: no image's size); warn when the views leave
+    intrinsics undetermined (:meth:`CameraResult.unidentified`)."""
+    result.info["image_size_from"] = size_how
+    bad = result.unidentified()
+    if bad:
+        import warnings
+
+        sd = result.std()
+        warnings.warn("the views do not determine the camera: "
+                      + ", ".join(f"{n} = {result.intrinsics[n]:.4g} +- {sd[n]:.3g}" for n in bad)
+                      + " (sd >= |value|); check the board size and square, and use views "
+                      "spread over the image", BayescalWarning, stacklevel=3)
+    return result
 
 
 def sandwich_covariance(lik, k, poses, s2w, s2, t2):

@@ -140,7 +140,8 @@ def as_views(views):
     Raises
     ------
     TypeError
-        Anything else, naming what was given.
+        Anything else, naming what was given, or the first element that is not a view (a
+        None: an image where :func:`~bayescal.find_chessboard` found no board).
     """
     given = type(views).__name__
     if isinstance(views, BoardView):
@@ -149,6 +150,15 @@ def as_views(views):
         views = list(views)
     except TypeError:
         views = []
-    if not views or not all(isinstance(v, BoardView) for v in views):
+    if not views:
         raise InvalidTypeError(f"views must be a non-empty sequence of BoardView, got {given}")
+    bad = [k for k, v in enumerate(views) if not isinstance(v, BoardView)]
+    if bad:
+        k = bad[0]
+        why = (" (find_chessboard returns None for an image where it finds no whole board: "
+               "leave that image out)" if views[k] is None else "")
+        raise InvalidTypeError(f"views[{k}] is {type(views[k]).__name__}, not a BoardView"
+                               f"{why}; {len(bad)} of the {len(views)} views are not"
+                               + (f": indices {', '.join(map(str, bad))}" if len(bad) > 1
+                                  else ""))
     return views

@@ -96,8 +96,9 @@ def check_out(out, *, force, inputs=(), option="--out"):
     ------
     UsageError
         ``out`` is a file; it holds an input file; it (or the folder it would be
-        created in) is not writable; it is not empty and ``force`` is False; or
-        it is not empty and has no bayescal manifest.
+        created in) is not writable; it is not empty and has no bayescal manifest
+        (whatever ``force``); or it holds bayescal's outputs and ``force`` is False. The
+        messages suggest a free folder name.
     """
     out = pathlib.Path(out)
     if out.exists() and not out.is_dir():
@@ -111,14 +112,23 @@ def check_out(out, *, force, inputs=(), option="--out"):
         raise UsageError(f"{option} {out}: {anc} is not a writable folder; expected a folder "
                          "bayescal may create files in")
     if out.is_dir() and any(out.iterdir()):
-        if not force:
-            raise UsageError(f"output folder {out} exists and is not empty; pass --force to "
-                             f"replace what bayescal wrote there, or choose another {option}")
         if _manifest_files(out) is None:
             raise UsageError(f"output folder {out} is not empty and was not written by bayescal "
-                             f"(no readable {MANIFEST}); --force only replaces bayescal's own "
-                             "outputs: choose an empty or new folder")
+                             f"(no readable {MANIFEST}), so it is left alone, --force or not: "
+                             f"choose a new or empty folder, e.g. {option} {_free_name(out)}")
+        if not force:
+            raise UsageError(f"output folder {out} holds an earlier bayescal run; pass --force "
+                             f"to replace it, or choose another {option}, e.g. "
+                             f"{_free_name(out)}")
     return out
+
+
+def _free_name(out):
+    """``out-2``, ``out-3``, ...: the first that does not exist yet."""
+    k = 2
+    while out.with_name(f"{out.name}-{k}").exists():
+        k += 1
+    return out.with_name(f"{out.name}-{k}")
 
 
 def _umask():

@@ -1,14 +1,14 @@
 """The record of a calibration run: ``run.json`` beside the result file.
 
-A ``bayescal calibrate`` output folder holds the result object (``result.json``
-for the least squares, :meth:`~bayescal.CalibrationResult.save`, or
-``posterior.npz`` for the Bayesian method, :meth:`~bayescal.Posterior.save`)
-and ``run.json``: the inputs, the noise settings and where they came from, the
-image size, the seed, the command line, whether the outlier mixture was on and,
-for a floor-plan run (``--walls``), the plan itself (``"plan"``: wall segments
-and sds, :func:`bayescal.io.planfile.plan_record`) (format ``"bayescal-run"``,
-versioned). ``bayescal reconstruct`` and ``bayescal report`` load the result
-object through :func:`load_run`.
+A ``bayescal calibrate`` output folder holds the result object (``result.json`` for the
+least squares, :meth:`~bayescal.CalibrationResult.save`, or ``posterior.npz`` for the
+Bayesian method, :meth:`~bayescal.Posterior.save`) and ``run.json``: the inputs, the noise
+settings and where they came from, the image size and where it came from (``reconstruct``
+refuses pixels of another size), the seed, the command line, whether the outlier mixture was
+on and, for a floor-plan run (``--walls``), the plan itself (``"plan"``: wall segments and
+sds, :func:`bayescal.io.planfile.plan_record`) (format ``"bayescal-run"``, versioned).
+``bayescal reconstruct`` and ``bayescal report`` load the result object through
+:func:`load_run`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,9 @@ def run_record(job, **more):
     rec = {"format": RUN_FORMAT, "version": RUN_VERSION, "method": job.method,
            "inputs": dict(job.inputs), "sigma_px": job.sigma_px,
            "sigma_px_how": job.sigma_px_how, "sigma_scene": job.sigma_scene_how,
-           "image_size": list(job.image_size), "seed": job.seed, "command": job.command,
+           "image_size": list(job.image_size),
+           "image_size_how": getattr(job, "image_size_how", None), "seed": job.seed,
+           "command": job.command,
            "nominal": job.nominal.as_dict(), "outliers": bool(job.outliers)}
     if job.plan is not None:
         from .planfile import plan_record

@@ -48,8 +48,11 @@ def offset_sd_line(sd):
     return f"{OFFSET_SD_KEY}: {float(sd):.6g}"
 
 
-#: the smallest standard deviation a ``sigma_*`` cell may hold (mm, px): a nanometre is
-#: far below any approximate point's error; smaller values are numerical accidents
+#: the smallest standard deviation a ``sigma_*`` cell stands for (mm, px): a nanometre is far
+#: below any approximate point's error; a smaller positive value is a relative error times a
+#: coordinate of ~0 (``simulate_room`` gives 1e-15 mm on an axis where cos(az) rounds to
+#: 6e-17), taken as this, which the fit treats the same (the coordinate known) without
+#: weights of 1e30, and said in a warning naming the lines
 MIN_SD = 1e-9
 #: what ``bayescal extract`` writes beside the pixels: peak over noise, distractor flag
 FLAG_COLUMNS = ("snr", "flagged")
@@ -107,8 +110,15 @@ def _fmt(value):
     return f"{value:.6g}" if isinstance(value, float) else repr(value)
 
 
+def _sd_unit(column):
+    """The unit of a standard-deviation column (``sigma_px``: px, ``sigma_x/y/z``: mm), or
+    None for any other column."""
+    return ("px" if column == "sigma_px" else "mm") if column.startswith("sigma_") else None
+
+
 def _parse_cell(text, *, where, sigma):
-    """Parse one CSV cell; sigma columns accept empty/inf as 'no information'."""
+    """Parse one CSV cell; sigma columns (``sigma`` their unit) accept empty/inf as 'no
+    information'."""
     s = text.strip()
     if s == "":
         if sigma:
@@ -125,12 +135,9 @@ def _parse_cell(text, *, where, sigma):
         raise InputError(f"{where}: {s!r} is not allowed; expected a finite number")
     if sigma and value <= 0:
         raise InputError(f"{where}: {s!r} is not a valid standard deviation; expected a "
-                         "positive number in mm (or empty/inf for 'no information')")
-    if sigma and value < MIN_SD:
-        raise InputError(f"{where}: {s!r} is not a measurement's standard deviation (below "
-                         f"{MIN_SD:g}; such a value comes from a relative error times a "
-                         "coordinate of ~0, and makes the fit's matrices singular); expected a "
-                         "realistic sd (or empty/inf for 'no information')")
+                         f"positive number in {sigma} (or empty/inf for 'no information')")
+    if sigma and value < MIN_SD:        # see _floor_note
+        return MIN_SD
     return value
 
 
@@ -186,15 +193,17 @@ def _read_csv(path, required, optional):
                              path=str(path), line=header_line, column=n)
     missing = [c for c in required if c not in names]
     if missing:
+        extra = [c for c in optional if c not in required]
         raise InputError(
             f"{path}, line {header_line}: missing column(s) {', '.join(repr(m) for m in missing)}; "
             f"the header has {', '.join(repr(n) for n in names)}, expected "
-            f"{', '.join(required)}" + (f" (optional: {', '.join(optional)})" if optional else ""),
+            f"{', '.join(required)}" + (f" (optional: {', '.join(extra)})" if extra else ""),
             path=str(path), line=header_line, column=missing[0])
     ignored = [n for n in names if n not in required and n not in optional]
     if ignored:
         print(f"bayescal: warning: {path}: ignoring column(s) {', '.join(ignored)} "
-              f"(known columns: {', '.join(tuple(required) + tuple(optional))})", file=sys.stderr)
+              f"(known columns: {', '.join(dict.fromkeys(tuple(required) + tuple(optional)))})",
+              file=sys.stderr)
     data = rows[1:]
     if not data:
         raise InputError(f"{path}: the header is there but no data lines follow",
@@ -209,14 +218,31 @@ def _read_csv(path, required, optional):
         lines[k] = lineno
         for c in wanted:
             j = names.index(c)
-            sigma = c.startswith("sigma_")
+            sigma = _sd_unit(c)
             where = f"{path}, line {lineno}, column '{c}'"
             try:
                 cols[c][k] = _parse_cell(cells[j], where=where, sigma=sigma)
             except InputError as exc:
                 exc.path, exc.line, exc.column = str(path), lineno, c
                 raise
+    _floor_note(path, cols, lines, {c: names.index(c) for c in wanted},
+                [cells for _, cells in data])
     return Table(path, cols, lines, "csv", meta=_meta(path, text))
+
+
+def _floor_note(path, cols, lines, index, cells):
+    """Warn about the sds below :data:`MIN_SD` that were read as it (CSV)."""
+    hits = []
+    for c, j in index.items():
+        if _sd_unit(c) is None:
+            continue
+        small = np.flatnonzero(cols[c] == MIN_SD)
+        hits += [(int(lines[k]), c) for k in small if float(cells[k][j]) < MIN_SD]
+    if hits:
+        where = ", ".join(f"{line} ({c})" for line, c in sorted(hits)[:5])
+        print(f"bayescal: warning: {path}: standard deviation(s) below {MIN_SD:g} on line(s) "
+              f"{where}{' ...' if len(hits) > 5 else ''}: a relative error times a coordinate "
+              f"of ~0; read as {MIN_SD:g} (that coordinate known)", file=sys.stderr)
 
 
 def _read_npz(path, required, optional):
@@ -269,14 +295,27 @@ def _read_npz(path, required, optional):
     table = Table(path, cols, np.arange(n), "npz",
                   {k: v for k, v in scalars.items() if k in optional or k in required})
     for c, a in cols.items():
-        sigma = c.startswith("sigma_")
+        sigma = _sd_unit(c)
+        if sigma:
+            _floor_npz(path, c, a)
         bad = np.isnan(a) | (np.isinf(a) if not sigma else (a < MIN_SD))
         if np.any(bad):
             k = int(np.argmax(bad))
-            what = (f"a number of at least {MIN_SD:g} mm (or inf for 'no information')"
+            what = (f"a number of at least {MIN_SD:g} {sigma} (or inf for 'no information')"
                     if sigma else "a finite number")
             raise table.error(k, c, f"{_fmt(float(a[k]))} is not allowed; expected {what}")
     return table
+
+
+def _floor_npz(path, column, a):
+    """Read the sds of ``a`` below :data:`MIN_SD` as it, with a warning (NPZ)."""
+    small = np.flatnonzero((a > 0) & (a < MIN_SD))
+    if len(small):
+        print(f"bayescal: warning: {path}, array '{column}': {len(small)} standard deviation(s) "
+              f"below {MIN_SD:g} (index {', '.join(map(str, small[:5]))}): a relative error "
+              f"times a coordinate of ~0; read as {MIN_SD:g} (that coordinate known)",
+              file=sys.stderr)
+        a[small] = MIN_SD
 
 
 def read_table(path, *, required, optional=()):

@@ -11,7 +11,8 @@ import numpy as np
 from .._validation import as_pixels, as_points
 from ..errors import InvalidValueError
 
-__all__ = ["plot_image", "plot_room", "plot_residuals", "plot_reconstruction", "savefig"]
+__all__ = ["plot_image", "plot_room", "plot_residuals", "plot_reconstruction", "savefig",
+           "legend_outside"]
 
 
 def _axes(ax, projection=None, figsize=(6, 5)):
@@ -21,6 +22,17 @@ def _axes(ax, projection=None, figsize=(6, 5)):
         return ax.figure, ax
     fig = plt.figure(figsize=figsize)
     return fig, fig.add_subplot(111, projection=projection)
+
+
+def legend_outside(ax, where="right", **kw):
+    """A legend outside the axes, where it cannot hide data: at the right of the axes
+    (``where="right"``) or below them, under the x label (``"below"``, in columns)."""
+    handles, labels = ax.get_legend_handles_labels()
+    if where == "below":
+        return ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.13),
+                         ncol=min(len(labels), 3), borderaxespad=0.0, **kw)
+    return ax.legend(handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+                     borderaxespad=0.0, **kw)
 
 
 def plot_image(pixels, *, params=None, image_size=(800, 600), ax=None, label="laser pixels",
@@ -223,5 +235,5 @@ def plot_reconstruction(mean, covariance, *, truth=None, walls=None, n_sigma=2.0
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title(f"Reconstruction, {n_sigma:.3g}-sigma ellipses (one in {every})")
-    ax.legend(loc="upper right", fontsize="small")
+    legend_outside(ax, "below", fontsize="small")
     return fig

@@ -225,10 +225,10 @@ def plot_reconstruction_ellipses(points, cov, *, approx_points=None, truth=None,
     """
     import matplotlib.pyplot as plt
 
-    from .basic import plot_reconstruction
+    from .basic import legend_outside, plot_reconstruction
 
     ncol = 3 if truth is not None else 2
-    fig, axes = plt.subplots(1, ncol, figsize=(5.5 * ncol, 5.2))
+    fig, axes = plt.subplots(1, ncol, figsize=(5.5 * ncol, 5.8))
     a1, a2 = axes[0], axes[1]
     if approx_points is not None:
         a1.scatter(approx_points[:, 0], approx_points[:, 1], s=2, c="0.75",
@@ -247,7 +247,7 @@ def plot_reconstruction_ellipses(points, cov, *, approx_points=None, truth=None,
     a2.set_xlabel("azimuth (deg)")
     a2.set_ylabel("sd (mm)")
     a2.set_title("per-point sd in the sensor's frame", fontsize="medium")
-    a2.legend(fontsize="small")
+    legend_outside(a2, "below", fontsize="small")
     if truth is not None:
         e = np.einsum("nij,nj->ni", R, truth - points)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -262,6 +262,6 @@ def plot_reconstruction_ellipses(points, cov, *, approx_points=None, truth=None,
         a3.set_ylabel("(truth - estimate) / sd (dimensionless)")
         a3.set_title(f"error / sd: {100 * inside:.0f} % inside +-2 (95 % expected)",
                      fontsize="medium")
-        a3.legend(fontsize="small")
+        legend_outside(a3, "below", fontsize="small")
     fig.tight_layout()
     return fig

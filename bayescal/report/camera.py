@@ -3,8 +3,9 @@
 :func:`write_camera_report` reads a :class:`~bayescal.CameraResult` (and, if run, the
 cross-validation between halves of the views) and writes ``camera_report.md`` and
 ``camera_report.html``: the intrinsics with their standard errors, the noise model,
-one row per view (corners, rms, inferred noise, neighbour correlation; a view whose
-rms is over 3x the median is flagged), the cross-validation chi-square, and the
+intrinsics the views do not determine (sd at least the value) flagged, one row per view
+(corners, rms, inferred noise, neighbour correlation; a view whose rms is over 3x the
+median is flagged), the cross-validation chi-square, and the
 figures it is given.
 """
 
@@ -21,9 +22,11 @@ REPORT_STEM = "camera_report"
 
 
 def _intrinsics_rows(result):
-    sd = result.std()
-    return [[n, f"{v:.6g}", f"{sd[n]:.3g}", "-" if n == "xi" else "px"]
+    sd, bad = result.std(), result.unidentified()
+    rows = [[n, f"{v:.6g}", f"{sd[n]:.3g}", "-" if n == "xi" else "px",
+             "**no** (sd >= value)" if n in bad else "yes"]
             for n, v in result.intrinsics.items()]
+    return rows, [n in bad for n in result.intrinsics]
 
 
 def _view_rows(result):
@@ -71,7 +74,12 @@ def camera_document(result, *, crossval=None, figures=(), title=None, inputs=())
                   f"method {result.method}; noise model `{result.noise}`"
                   + (f"; inputs: {', '.join(inputs)}" if inputs else "") + ".")
     doc.heading("Intrinsics (eq. (1))")
-    doc.table(["name", "value", "sd", "unit"], _intrinsics_rows(result))
+    rows, bad = _intrinsics_rows(result)
+    if any(bad):
+        doc.warning(f"The views do not determine {', '.join(result.unidentified())} (an sd at "
+                    "least the value): check the board size (all its inner corners) and the "
+                    "square, and use views spread over the image.")
+    doc.table(["name", "value", "sd", "unit", "identified"], rows, flags=bad)
     if result.noise == "view-systematic":
         doc.paragraph(f"Per-view systematic field: rms {result.tau:.3f} px.")
     doc.heading("Views")

@@ -26,8 +26,8 @@ import numpy as np
 
 from ..io.paramtable import pose_rows
 from ..results.calibration import linear_reconstruction
-from ..results.posterior import PRIOR_DOMINATED_RATIO
 from ..sensor.parameters import IDENTIFIABLE_NAMES, SensorParams
+from ..stats.identifiability import PRIOR_DOMINATED_RATIO, RIDGE_NAMES
 from .document import Document, write_document
 
 __all__ = ["write_report", "parameter_rows", "accuracy", "linear_reconstruction",
@@ -273,13 +273,29 @@ def _intro(doc, result, info):
         doc.paragraph(f"Scene uncertainty: {info['sigma_scene']}.")
 
 
-def _note():
-    return ("*Prior-dominated*: the data do not determine the parameter, its prior does (or "
-            f"it was held fixed). Either its sd exceeds {PRIOR_DOMINATED_RATIO:g} x its prior "
-            "sd (column sd_ratio, when a prior was used), or it lies on the exact phi/alpha "
-            "ridge: phi, alpha_u and alpha_v enter the model only through "
-            "gamma_u = alpha_u (xi + phi) and gamma_v = alpha_v (xi + phi). The seven "
-            "identifiable combinations are " + ", ".join(IDENTIFIABLE_NAMES) + ".")
+def _note(result):
+    """The footnote of the parameter table: the rule of
+    :func:`~bayescal.stats.identifiability.prior_dominated`, and the data's near-null
+    directions where a least-squares result has them."""
+    text = ("*Prior-dominated*: the priors, not the data, decide the parameter (or it was "
+            f"held fixed): {', '.join(RIDGE_NAMES)} always (they enter the model only through "
+            "gamma_u = alpha_u (xi + phi) and gamma_v = alpha_v (xi + phi)); any other when its "
+            f"sd exceeds {PRIOR_DOMINATED_RATIO:g} x its prior sd (column sd_ratio); without a "
+            "prior (the sequential method), any with a weight of 0.05 or more in a near-null "
+            "direction of the data. The seven identifiable combinations are "
+            + ", ".join(IDENTIFIABLE_NAMES) + ".")
+    ident = None if _is_posterior(result) else getattr(result, "identifiability", None)
+    null = getattr(ident, "null_directions", None) or []
+    if null:
+        dirs = "; ".join(
+            f"{k} (s = {nd['singular_value']:.3g}): "
+            + ", ".join(f"{w:+.3f} {n}" for n, w in nd["components"].items())
+            for k, nd in enumerate(null, 1))
+        text += (f" Near-null directions of the data (singular values below {ident.rtol:g} of "
+                 "the largest, in columns scaled to unit norm): combinations the data alone "
+                 f"leave open, which the priors close: {dirs}. With a prior, a parameter in "
+                 "one is flagged only when its sd ratio shows that the priors decide it.")
+    return text
 
 
 def _checks_section(doc, check, flagged):
@@ -313,7 +329,7 @@ def build_document(result, info, *, rows, figs, acc, truth, warnings, title, che
     doc.heading("Parameters")
     head, body, flags = _table(rows, truth)
     doc.table(head, body, flags=flags)
-    doc.paragraph(_note())
+    doc.paragraph(_note(result))
     _pose_section(doc, result, truth)
     _model_section(doc, info)
     if acc:

@@ -46,26 +46,19 @@ from ..errors import BayescalError, InvalidValueError, MissingFileError, OutputE
 from ..sensor.parameters import IDENTIFIABLE_NAMES, PARAM_NAMES, SensorParams
 from ..sensor.pose import POSE_NAMES, LaserPose, as_pose_array
 from ..stats.identifiability import (
+    PRIOR_DOMINATED_RATIO,
     IdentifiabilityReport,
     covariance_8_from_identifiable,
     identifiability_report,
     identifiable_to_paper_jacobian,
+    prior_dominated,
 )
 from .reconstruction import LinearReconstruction, linear_reconstruction
 
-__all__ = [
-    "IdentifiabilityReport",
-    "identifiability_report",
-    "CalibrationResult",
-    "ConvergenceError",
-    "LinearReconstruction",
-    "covariance_8_from_identifiable",
-    "identifiable_to_paper_jacobian",
-    "linear_reconstruction",
-    "load_result",
-    "RESULT_FORMAT",
-    "RESULT_VERSION",
-]
+__all__ = ["IdentifiabilityReport", "identifiability_report", "CalibrationResult",
+           "ConvergenceError", "LinearReconstruction", "covariance_8_from_identifiable",
+           "identifiable_to_paper_jacobian", "linear_reconstruction", "load_result",
+           "RESULT_FORMAT", "RESULT_VERSION"]
 
 RESULT_FORMAT = "bayescal-result"
 RESULT_VERSION = 1
@@ -235,7 +228,8 @@ class CalibrationResult:
             px.
         sigma_px : float, optional
             Pixel noise of the new pixels, px (0: parameter part only). Default:
-            the noise the calibration used, else the one it estimated, else 0.
+            the noise the calibration used, else the one it estimated, else 0; after a fit
+            with per-pixel covariances, :meth:`ring_noise` (its ``sigma_px`` is a scale).
 
         Returns
         -------
@@ -245,6 +239,8 @@ class CalibrationResult:
         from .._validation import as_pixels
 
         pixels = np.atleast_2d(as_pixels(pixels))
+        if sigma_px is None and self.ring_noise() is not None:
+            return self.reconstructor()(pixels)
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         if not (np.isfinite(sigma_px) and sigma_px >= 0):
@@ -260,10 +256,18 @@ class CalibrationResult:
         :class:`~bayescal.results.reconstruction.Reconstructor`."""
         from .reconstruction import Reconstructor
 
+        ring = None if sigma_px is not None else self.ring_noise()
         if sigma_px is None:
             sigma_px = self.extras.get("sigma_px") or self.sigma_px_estimated or 0.0
         return Reconstructor(self.geometry(), self.covariance_identifiable,
-                             float(sigma_px), level=level)
+                             float(sigma_px), level=level, ring_noise=ring)
+
+    def ring_noise(self):
+        """The noise of new pixels without covariances after a fit with them (its
+        ``sigma_px`` a scale on them): :func:`~bayescal.results.pixelnoise.ring_noise_of`."""
+        from .pixelnoise import ring_noise_of
+
+        return ring_noise_of(self)
 
     @property
     def std(self) -> np.ndarray:
@@ -279,28 +283,27 @@ class CalibrationResult:
             sd = np.where(sd > 0, sd, np.nan)
             return self._covariance / np.outer(sd, sd)
 
-    def summary_rows(self, *, prior=None, ratio_limit=0.5):
+    def summary_rows(self, *, prior=None, ratio_limit=PRIOR_DOMINATED_RATIO):
         """One dict per paper parameter: ``name, mean, sd, q05, q95, prior_dominated``.
 
-        ``q05``/``q95`` is the normal 90 % interval. ``prior_dominated`` marks
-        parameters in a near-null direction of the data and, with ``prior``
-        (``{name: frozen distribution}``), those whose sd exceeds
-        ``ratio_limit`` x the prior sd (then ``prior_sd`` and ``sd_ratio`` are
-        added).
+        ``q05``/``q95`` is the normal 90 % interval. ``prior_dominated`` by the rule of
+        :func:`~bayescal.stats.identifiability.prior_dominated`: ``phi``, ``alpha_u``,
+        ``alpha_v``; with ``prior`` (``{name: frozen distribution}``; then ``prior_sd``
+        and ``sd_ratio`` are added) any whose sd exceeds ``ratio_limit`` x the prior sd;
+        without, any in a near-null direction of the data.
         """
-        flagged = set()
-        for nd in getattr(self.identifiability, "null_directions", []) or []:
-            flagged.update(nd.get("components", {}))
+        null = getattr(self.identifiability, "null_directions", []) or []
         rows = []
         for name, v, s in zip(PARAM_NAMES, self.params.to_array(), self.std, strict=True):
             row = {"name": name, "mean": float(v), "sd": float(s), "q05": float(v - Z90 * s),
-                   "q95": float(v + Z90 * s), "prior_dominated": name in flagged}
+                   "q95": float(v + Z90 * s)}
+            ratio = None
             if prior is not None and name in prior:
                 psd = float(prior[name].std())
                 row["prior_sd"] = psd
-                row["sd_ratio"] = s / psd if psd > 0 else float("nan")
-                row["prior_dominated"] = bool(row["prior_dominated"]
-                                              or row["sd_ratio"] > ratio_limit)
+                row["sd_ratio"] = ratio = s / psd if psd > 0 else float("nan")
+            scaled = None if ratio is None else ratio * PRIOR_DOMINATED_RATIO / ratio_limit
+            row["prior_dominated"] = prior_dominated(name, scaled, null)
             rows.append(row)
         return rows
 

@@ -14,7 +14,7 @@ return a :class:`CameraResult`; it answers:
     list of (M_k, 2) px, one per view (observed minus predicted);
 ``project(points)``, ``reconstruct(pixels)``
     eq. (1) both ways, with first-order covariances from ``covariance()``;
-``model_check()``, ``summary()``, ``save(path)`` / :func:`load_camera`.
+``model_check()``, ``unidentified()``, ``summary()``, ``save(path)`` / :func:`load_camera`.
 
 A posterior adds ``samples`` (n, 5 + noise), ``diagnostics`` and ``converged``.
 File format: one JSON object with ``"format": "bayescal-camera"``.
@@ -118,8 +118,24 @@ class CameraResult:
         return out
 
     def std(self):
-        """Standard deviations of the intrinsics as a dict."""
-        return {n: float(s) for n, s in zip(CAMERA_NAMES, np.sqrt(np.diag(self.cov)), strict=True)}
+        """Standard deviations of the intrinsics as a dict (NaN where the variance is not
+        positive)."""
+        with np.errstate(invalid="ignore"):
+            sd = np.sqrt(np.diag(self.cov))
+        return {n: float(s) for n, s in zip(CAMERA_NAMES, sd, strict=True)}
+
+    def unidentified(self):
+        """Names of the intrinsics the views do not determine: sd at least the value (or
+        not finite).
+
+        None of the five is near zero for a real camera (``xi`` about 1, ``gamma`` hundreds
+        of px, the principal point inside the image), so an interval that reaches zero says
+        the views leave it open; the real views of ``docs/camera.md`` give sd / value at most
+        0.009, a board option smaller than the board (every other row taken for the next,
+        ``docs/camera_images.md``) 1.3-86 for all but ``v0``.
+        """
+        sd = self.std()
+        return [n for n, v in self.intrinsics.items() if not sd[n] < abs(v)]
 
     @property
     def theta(self):
@@ -189,10 +205,15 @@ class CameraResult:
 
     def summary(self):
         """Text: estimates with standard errors, the noise, every view's rms."""
-        sd = self.std()
+        sd, bad = self.std(), self.unidentified()
         lines = [f"camera calibration ({self.method}, noise model {self.noise!r}, "
                  f"{len(self.view_names)} views, all used)"]
-        lines += [f"  {n:8s} {v:12.5f} +- {sd[n]:.5f}" for n, v in self.intrinsics.items()]
+        lines += [f"  {n:8s} {v:12.5f} +- {sd[n]:.5f}"
+                  + ("  NOT IDENTIFIED (sd >= |value|)" if n in bad else "")
+                  for n, v in self.intrinsics.items()]
+        if bad:
+            lines.append(f"  NOT IDENTIFIED: the views do not determine {', '.join(bad)}; check "
+                         "the board size and square, and use views spread over the image")
         if self.noise == "view-systematic":
             lines.append(f"  tau (per-view systematic field, rms) {self.tau:.3f} px")
         mc = self.model_check()
@@ -255,11 +276,15 @@ def load_camera(path):
     Raises
     ------
     ValueError
-        If the file is not JSON or not a camera result (named).
+        If the file is not text, not JSON or not a camera result (named).
     """
     path = pathlib.Path(path)
     try:
-        d = json.loads(path.read_text())
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InvalidValueError(f"{path}: not a text file; expected a camera result (JSON "
+                                "written by CameraResult.save or bayescal calibrate-camera)"
+                                ) from None
     except (OSError, json.JSONDecodeError) as exc:
         raise InvalidValueError(f"{path}: cannot read a camera result ({exc})") from None
     try:

@@ -14,20 +14,19 @@ import numpy as np
 from ..likelihood.priors import Prior
 from ..sensor.parameters import PARAM_NAMES, SensorParams, to_identifiable
 from ..sensor.pose import POSE_NAMES, LaserPose
+from ..stats.identifiability import PRIOR_DOMINATED_RATIO, RIDGE_NAMES, prior_dominated
 from .posterior_file import read_posterior, save_posterior
 from .reconstruction import Reconstruction
 
 __all__ = ["Posterior", "Reconstruction", "load_posterior", "PRIOR_DOMINATED_RATIO",
            "LAPLACE_SD_TOLERANCE"]
 
-#: a parameter is flagged prior-dominated when posterior sd / prior sd exceeds this
-PRIOR_DOMINATED_RATIO = 0.5
 #: MCMC and Laplace disagree when their sd differ by more than this fraction, or their
 #: centres by more than this many MCMC sd
 LAPLACE_SD_TOLERANCE = 0.2
 LAPLACE_MEAN_TOLERANCE = 0.5
 #: parameters the data cannot see one by one (docs/model.md, fact 1)
-NON_IDENTIFIABLE = ("phi", "alpha_u", "alpha_v")
+NON_IDENTIFIABLE = RIDGE_NAMES
 
 
 class Posterior:
@@ -217,10 +216,11 @@ class Posterior:
         list of dict
             Keys ``name, mean, sd, q05, q50, q95, tau, ess, prior_sd, sd_ratio,
             prior_dominated, identifiable``. ``sd_ratio`` is posterior sd / prior
-            sd; ``prior_dominated`` when it exceeds :data:`PRIOR_DOMINATED_RATIO`
-            (the data did not even halve the prior's spread), and always for
-            ``phi``, ``alpha_u``, ``alpha_v``: the data do not see them one by one,
-            so whatever their posterior is, the priors decided it.
+            sd; ``prior_dominated`` by the rule of
+            :func:`~bayescal.stats.identifiability.prior_dominated`: it exceeds
+            :data:`PRIOR_DOMINATED_RATIO` (the data did not even halve the prior's
+            spread), and always for ``phi``, ``alpha_u``, ``alpha_v``: the data do not see
+            them one by one, so whatever their posterior is, the priors decided it.
         """
         x = self.param_samples
         q = np.quantile(x, [0.05, 0.5, 0.95], axis=0)
@@ -234,8 +234,7 @@ class Posterior:
                          "q05": float(q[0, k]), "q50": float(q[1, k]), "q95": float(q[2, k]),
                          "tau": tau[name], "ess": ess[name], "prior_sd": float(psd[k]),
                          "sd_ratio": float(ratio),
-                         "prior_dominated": bool(ratio > PRIOR_DOMINATED_RATIO
-                                                 or name in NON_IDENTIFIABLE),
+                         "prior_dominated": prior_dominated(name, ratio),
                          "identifiable": name not in NON_IDENTIFIABLE})
         return rows
 
@@ -376,15 +375,24 @@ class Posterior:
         :class:`~bayescal.results.reconstruction.Reconstructor`."""
         from .reconstruction import Reconstructor
 
-        key = (level, rng if isinstance(rng, (int, type(None))) else id(rng))
+        key = (level, rng if isinstance(rng, (int, type(None))) else id(rng),
+               id(getattr(self, "pixel_cov", None)))
         if getattr(self, "_reconstructor", (None, None))[0] != key:
             th = self.geometry_samples
             self._reconstructor = (key, Reconstructor(
                 th.mean(axis=0), np.cov(th, rowvar=False),
                 float(np.mean(self._sigma_px_samples())), theta_samples=th,
                 sigma_samples=self._sigma_px_samples(), probe_pixels=self.pixels,
-                level=level, rng=rng))
+                level=level, rng=rng, ring_noise=self.ring_noise()))
         return self._reconstructor[1]
+
+    def ring_noise(self):
+        """The noise of new pixels without covariances after a fit with them (``pixel_cov``,
+        set by :func:`~bayescal.sample_posterior`, not kept in its file):
+        :func:`~bayescal.results.pixelnoise.ring_noise_of`."""
+        from .pixelnoise import ring_noise_of
+
+        return ring_noise_of(self)
 
     def noise_values(self):
         """Samples of each inferred global on its natural scale, ``{name: (S,)}``.

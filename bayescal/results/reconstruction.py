@@ -5,7 +5,8 @@ Both result objects unpack as ``mean, covariance``: :class:`Reconstruction`
 (Monte-Carlo draws under the posterior) and :class:`LinearReconstruction`
 (first-order propagation). A :class:`Reconstructor` is made once per calibration
 (``result.reconstructor()``) and then reconstructs a frame of pixels in a few
-milliseconds: the parameter covariance in the seven identifiable coordinates
+milliseconds where its first-order path holds: the parameter covariance in the seven
+identifiable coordinates
 propagated through the analytic Jacobian of the triangulation, plus the pixel
 noise through its pixel Jacobian. The identifiable coordinates matter: the
 ``alpha``-``xi``-``phi`` ridge of the paper's parameters is curved, and a
@@ -17,23 +18,32 @@ back to sampling where the two disagree (``docs/reconstruction.md``).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import stats
 
-from ..errors import InvalidValueError, MissingDependencyError
+from ..errors import BayescalWarning, InvalidValueError, MissingDependencyError
 from ..sensor.laser import triangulate_geo
 
 __all__ = ["Reconstruction", "LinearReconstruction", "Reconstructor", "reconstruct_frames",
-           "linear_reconstruction",
-           "reconstruct_posterior",
-           "reconstruct_frames",
-           "propagate", "SD_TOLERANCE", "MEAN_TOLERANCE"]
+           "linear_reconstruction", "reconstruct_posterior", "propagate", "SD_TOLERANCE",
+           "MEAN_TOLERANCE"]
 
 #: the fast path is used when its sds are within this fraction of the sampled path's
 #: (90th percentile over the probe pixels and axes)
 SD_TOLERANCE = 0.10
 #: ... and its means within this many sds of the sampled path's
 MEAN_TOLERANCE = 0.10
+
+
+def _checked_valid(valid):
+    """``valid``, after a warning when no ray of several pixels met the cone: pixels of
+    another camera or image size than the calibration's (``bayescal reconstruct`` checks)."""
+    if np.size(valid) > 1 and not np.any(valid):
+        warnings.warn(f"none of the {np.size(valid)} pixels' rays meets the laser cone: are they "
+                      "of the calibrated camera (image size)?", BayescalWarning, stacklevel=3)
+    return valid
 
 
 class _PointCloud:
@@ -46,12 +56,7 @@ class _PointCloud:
         """Write the points as a point cloud: binary PLY (``.ply``) or ``.npz``, with the
         covariances, the pixels and the outlier probabilities where known
         (:mod:`bayescal.io.pointcloud`); atomic, never replacing a file unless
-        ``overwrite``.
-
-        Returns
-        -------
-        pathlib.Path
-        """
+        ``overwrite``. Returns the path."""
         import pathlib
 
         from ..io.pointcloud import write_npz, write_ply
@@ -97,11 +102,10 @@ class Reconstruction(_PointCloud):
     """
 
     def __init__(self, samples, level):
-        self.samples = samples
-        self.level = level
+        self.samples, self.level = samples, level
         ok = np.all(np.isfinite(samples), axis=-1)                   # (S, M)
         n = ok.sum(axis=0)
-        self.valid = n > 0.99 * len(samples)
+        self.valid = _checked_valid(n > 0.99 * len(samples))
         s = np.where(ok[..., None], samples, 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
             self.mean = s.sum(axis=0) / n[:, None]
@@ -139,7 +143,7 @@ class LinearReconstruction(_PointCloud):
 
     def __init__(self, mean, covariance, level=0.9):
         self.mean, self.covariance, self.level = mean, covariance, level
-        self.valid = np.all(np.isfinite(mean), axis=-1)
+        self.valid = _checked_valid(np.all(np.isfinite(mean), axis=-1))
         self.samples = None
 
     @property
@@ -259,6 +263,10 @@ class Reconstructor:
         Credible level of the intervals.
     rng : numpy.random.Generator, int or None
         For the sampled path's pixel noise.
+    ring_noise : RingNoise, optional
+        The noise of new pixels without covariances when the calibration weighed its pixels
+        by covariances (``sigma_px`` is then a scale on them, not a noise in px); see
+        :mod:`bayescal.results.pixelnoise`.
 
     Attributes
     ----------
@@ -284,9 +292,10 @@ class Reconstructor:
     """
 
     def __init__(self, theta, cov_theta, sigma_px, *, theta_samples=None, sigma_samples=None,
-                 probe_pixels=None, level=0.9, rng=None):
+                 probe_pixels=None, level=0.9, rng=None, ring_noise=None):
         from .._validation import resolve_rng
 
+        self.ring_noise = ring_noise
         self.theta = np.asarray(theta, float)
         self.cov_theta = np.asarray(cov_theta, float)
         self.sigma_px = float(sigma_px)
@@ -308,8 +317,7 @@ class Reconstructor:
     def _check(self, probe):
         idx = np.linspace(0, len(probe) - 1, min(200, len(probe))).round().astype(int)
         probe = probe[idx]
-        lin_mean, lin_cov = propagate(self.theta, self.cov_theta, probe,
-                                      self.sigma_px**2 * np.eye(2))
+        lin_mean, lin_cov = propagate(self.theta, self.cov_theta, probe, self._noise(probe))
         smp = self.sampled(probe, max_samples=2000)     # Monte-Carlo error ~2 % of an sd
         sd_l = np.sqrt(np.diagonal(lin_cov, axis1=-2, axis2=-1))
         sd_s = np.sqrt(np.diagonal(smp.covariance, axis1=-2, axis2=-1))
@@ -325,10 +333,17 @@ class Reconstructor:
         r = self._radius(probe[ok])
         self.radius_range = (float(r.min()) - 2.0, float(r.max()) + 2.0)
 
+    def _noise(self, pixels):
+        """The pixel noise of pixels given without covariances: (2, 2) or (M, 2, 2) px^2."""
+        if self.ring_noise is not None:
+            return self.ring_noise.covariance(pixels)
+        return self.sigma_px**2 * np.eye(2)
+
     def sampled(self, pixels, *, pixel_cov=None, max_samples=400):
         """The sampled path: each posterior draw triangulates the pixels perturbed by
         its pixel noise (or ``pixel_cov``); a :class:`Reconstruction`."""
-
+        if pixel_cov is None and self.ring_noise is not None:
+            pixel_cov = self.ring_noise.covariance(pixels)
         if self.theta_samples is None:
             raise InvalidValueError("the sampled path needs posterior draws (a Posterior's "
                                     "reconstructor)")
@@ -349,7 +364,7 @@ class Reconstructor:
             px.
         pixel_cov : array_like, shape (M, 2, 2) or (2, 2), optional
             Pixel noise covariance of each pixel, px^2 (e.g. from the laser
-            extractor); default ``sigma_px^2 I``.
+            extractor); default ``ring_noise``'s, else ``sigma_px^2 I``.
         method : {"auto", "linear", "sampled"}
             ``"auto"``: the fast path where it passed its check and the pixel lies
             on the probed ring, the sampled path elsewhere.
@@ -364,8 +379,7 @@ class Reconstructor:
         if method not in ("auto", "linear", "sampled"):
             raise InvalidValueError(f"method must be 'auto', 'linear' or 'sampled', got {method!r}")
         pixels = np.atleast_2d(as_pixels(pixels))
-        cov_px = (self.sigma_px**2 * np.eye(2) if pixel_cov is None
-                  else np.asarray(pixel_cov, float))
+        cov_px = self._noise(pixels) if pixel_cov is None else np.asarray(pixel_cov, float)
         if cov_px.shape not in ((2, 2), (len(pixels), 2, 2)):
             raise InvalidValueError(f"pixel_cov must have shape (2, 2) or (M, 2, 2) = "
                                     f"{(len(pixels), 2, 2)}, got {cov_px.shape}")
@@ -377,8 +391,9 @@ class Reconstructor:
         r = self._radius(pixels)
         off = (r < self.radius_range[0]) | (r > self.radius_range[1])
         if method == "auto" and self.theta_samples is not None and off.any():
-            smp = self.sampled(pixels[off], pixel_cov=None if pixel_cov is None or
-                               cov_px.ndim == 2 else cov_px[off])
+            own = pixel_cov is not None or self.ring_noise is not None
+            smp = self.sampled(pixels[off], pixel_cov=None if not own else
+                               cov_px if cov_px.ndim == 2 else cov_px[off])
             out.mean[off], out.covariance[off] = smp.mean, smp.covariance
         out.method = "linear" if not off.any() or self.theta_samples is None else "mixed"
         out.pixels = pixels

@@ -21,9 +21,36 @@ __all__ = [
     "identifiability_report",
     "covariance_8_from_identifiable",
     "identifiable_to_paper_jacobian",
+    "prior_dominated",
+    "PRIOR_DOMINATED_RATIO",
+    "RIDGE_NAMES",
 ]
 
 _MIN_WEIGHT = 0.05
+#: the exact phi/alpha ridge: the data see these only through gamma = alpha (xi + phi)
+#: (docs/model.md, fact 1), whatever their posterior, the priors decide them
+RIDGE_NAMES = ("phi", "alpha_u", "alpha_v")
+#: a parameter is prior-dominated when its sd exceeds this fraction of its prior sd (the data
+#: did not even halve the prior's spread)
+PRIOR_DOMINATED_RATIO = 0.5
+
+
+def prior_dominated(name, sd_ratio=None, null_directions=()):
+    """Whether a parameter's value is the priors', not the data's: the rule of every result
+    and report.
+
+    ``phi``, ``alpha_u``, ``alpha_v`` always (:data:`RIDGE_NAMES`); any other when its sd over
+    its prior sd (``sd_ratio``) exceeds :data:`PRIOR_DOMINATED_RATIO`; without a finite ratio
+    (no prior: the sequential method), when it has a weight of at least 0.05 in one of
+    ``null_directions`` (:attr:`IdentifiabilityReport.null_directions`). With a prior, a
+    near-null direction of the data alone does not flag a parameter: the priors of the
+    others in it may still pin it down (its ratio says whether they do).
+    """
+    if name in RIDGE_NAMES:
+        return True
+    if sd_ratio is not None and np.isfinite(sd_ratio):
+        return bool(sd_ratio > PRIOR_DOMINATED_RATIO)
+    return any(name in nd.get("components", {}) for nd in null_directions or ())
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""The command line end to end (subprocess), its output-folder rules, and the report helpers.
+"""The command line end to end (in this process; by subprocess where the interpreter
+matters), its output-folder rules, and the report helpers.
 
 Every bad-input case checks three things: exit code 2, a message naming the
 file, line and column, and that nothing was written.
@@ -13,6 +14,7 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 import bayescal
 import bayescal as bc
@@ -23,12 +25,8 @@ from bayescal.report.report import linear_reconstruction
 N_POINTS = 60
 
 
-def run(*args, cwd, env=None, timeout=600):
-    """Run ``python -m bayescal ARGS`` in ``cwd``; returns the CompletedProcess."""
-    root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
-    full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **(env or {}))
-    return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, env=full_env, timeout=timeout)
+#: ``bayescal ARGS`` in a folder (in this process; a subprocess when ``env`` is given)
+run = run_cli
 
 
 @pytest.fixture(scope="module")
@@ -119,8 +117,11 @@ def test_output_folder_is_never_overwritten_without_force(sim, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "mine.txt").write_text("user data")
+    # a folder bayescal did not write: --force is not suggested (it would be refused too)
     r = run("simulate", "--out", out, "--n-points", 10, cwd=tmp_path)
-    assert r.returncode == 2 and "exists and is not empty; pass --force" in r.stderr
+    assert r.returncode == 2 and "was not written by bayescal" in r.stderr
+    assert "--force or not: choose a new or empty folder, e.g. --out" in r.stderr
+    assert f"{out}-2" in r.stderr
     r = run("simulate", "--out", out, "--n-points", 10, "--force", cwd=tmp_path)
     assert r.returncode == 2 and "was not written by bayescal" in r.stderr
     assert [p.name for p in out.iterdir()] == ["mine.txt"]
@@ -294,7 +295,7 @@ def test_report_rebuilds_from_a_run(seq_run, sim, tmp_path):
     md = _check_report(tmp_path / "rep")
     assert "truth" in md        # the run recorded its --truth file
     r = run("report", folder, "--out", "rep", cwd=tmp_path)
-    assert r.returncode == 2 and "not empty" in r.stderr
+    assert r.returncode == 2 and "holds an earlier bayescal run; pass --force" in r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -580,7 +581,8 @@ def test_prior_option_overrides_one_default_and_keeps_the_rest(tmp_path):
 
 
 def test_result_rows_flag_prior_dominated_parameters():
-    """sd_ratio > PRIOR_DOMINATED_RATIO, or a near-null direction, marks a parameter."""
+    """phi, alpha_u, alpha_v and sd_ratio > PRIOR_DOMINATED_RATIO mark a parameter; with a
+    prior a near-null direction of the data alone does not (phi's here), without one it does."""
     from bayescal.likelihood.priors import default_prior
     from bayescal.report.report import parameter_rows
     from bayescal.results.calibration import CalibrationResult, identifiability_report
@@ -598,7 +600,13 @@ def test_result_rows_flag_prior_dominated_parameters():
         identifiability=identifiability_report(J, bc.PARAM_NAMES))
     rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
     flagged = sorted(n for n, r in rows.items() if r["prior_dominated"])
-    assert flagged == ["beta", "phi", "xi"]
+    assert flagged == ["alpha_u", "alpha_v", "beta", "phi", "xi"]
+    J[:, 7] = 0.0                                       # beta too: no information
+    res.identifiability = identifiability_report(J, bc.PARAM_NAMES)
+    rows = {r["name"]: r for r in parameter_rows(res, prior=prior)}
+    assert not rows["h"]["prior_dominated"]             # ratio 0.4: the priors do not decide
+    no_prior = {r["name"]: r["prior_dominated"] for r in parameter_rows(res)}
+    assert sorted(n for n, f in no_prior.items() if f) == ["alpha_u", "alpha_v", "beta", "phi"]
     np.testing.assert_allclose(rows["h"]["sd_ratio"], 0.4, rtol=1e-12)
     np.testing.assert_allclose(rows["u0"]["q95"] - rows["u0"]["q05"], 2 * 1.6448536 * sd[4],
                                rtol=1e-7)

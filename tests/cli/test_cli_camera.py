@@ -117,3 +117,63 @@ def test_a_view_with_wrong_corners_fails_with_the_files_kept(tmp_path, capsys):
                  "--no-cross-validation", "--out", str(out)]) == 1
     assert "view(s) shuffled fit over 3x worse" in capsys.readouterr().err
     assert (out / "camera.json").is_file() and "SUSPECT" in (out / "camera_report.md").read_text()
+
+
+def _rows_of(truth, rows, name):
+    """Some rows of a rendered board's true corners, labelled as a board of their own."""
+    from bayescal.image.chessboard import order_corners
+
+    g = order_corners(truth.pixels, (8, 6), center=(639.5, 511.5)).reshape(6, 8, 2)[rows]
+    return bc.BoardView(g.reshape(-1, 2), bc.board_points((8, len(rows)), 42.0), name=name,
+                        image_size=(1280, 1024))
+
+
+def test_a_board_option_smaller_than_the_board_is_refused(boards, tmp_path, capsys,
+                                                          monkeypatch):
+    # what OpenCV finds for --board 8x3 on an 8x6 board: every other row, or three rows of
+    # it (detection itself is replaced by the true corners, to keep this test fast; the
+    # lattice test reads the images)
+    root, paths, truths = boards
+    by_name = {p.name: t for p, t in zip(paths, truths, strict=True)}
+    parts = {"board_0.pgm": [0, 2, 4], "board_1.pgm": [1, 3, 5], "board_2.pgm": [0, 1, 2],
+             "board_3.pgm": [3, 4, 5], "board_4.pgm": [0, 2, 4]}
+
+    def find(path, board, **kw):
+        return _rows_of(by_name[path.name], parts[path.name], path.name)
+
+    monkeypatch.setattr(bc, "find_chessboard", find)
+    assert main(["calibrate-camera", *map(str, paths), "--board", "8x3",
+                 "--out", str(tmp_path / "cam")]) == 2
+    err = capsys.readouterr().err
+    assert "--board 8x3: the chessboard goes on past the corners found in 5 of 5 images" in err
+    assert "8x6 inner corners seen; expected --board 8x6" in err
+    assert not (tmp_path / "cam").exists()
+
+
+def test_a_view_or_two_of_a_larger_lattice_only_warn(recwarn):
+    from bayescal.cli.camera import _check_extent
+
+    _check_extent(["a.pgm", "b.pgm", "c.pgm"], (8, 6), [(8, 6), (8, 7), (8, 6)])
+    assert "b.pgm: the chessboard seems to go on past the 8x6 corners found (8x7 seen)" in \
+        str(recwarn.pop().message)
+    with pytest.raises(bc.BayescalError, match="in 2 of 3 images .* 10x6 inner corners seen"):
+        _check_extent(["a.pgm", "b.pgm", "c.pgm"], (8, 6), [(10, 6), (8, 6), (10, 6)])
+
+
+def test_a_fit_that_does_not_determine_the_camera_is_no_success(tmp_path, capsys):
+    from bayescal.scene.boards import simulate_views
+
+    # every other row of each view taken for the next: the default noise model then
+    # leaves xi and gamma_v with an sd above their value (seed 0, four views)
+    views, _ = simulate_views(n_views=4, rng=0)
+    parts = [bc.BoardView(v.pixels.reshape(6, 8, 2)[[0, 2, 4]].reshape(-1, 2),
+                          bc.board_points((8, 3), 42.0), name=v.name) for v in views]
+    bc.write_views(tmp_path / "c.csv", parts)
+    out = tmp_path / "cam"
+    assert main(["calibrate-camera", "--corners", str(tmp_path / "c.csv"),
+                 "--no-cross-validation", "--out", str(out)]) == 1
+    cap = capsys.readouterr()
+    assert "failed: the views do not determine xi, gamma_v (sd >= |value|)" in cap.err
+    assert "xi" in cap.out and "NOT IDENTIFIED (sd >= |value|)" in cap.out
+    report = (out / "camera_report.md").read_text()
+    assert "The views do not determine xi, gamma_v" in report and "**no** (sd >= value)" in report

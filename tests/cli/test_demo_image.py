@@ -1,6 +1,7 @@
 """The demo's image stage: the truth of extracted pixels."""
 
 import numpy as np
+import pytest
 
 import bayescal as bc
 from bayescal.cli.demo import _true_points
@@ -17,3 +18,19 @@ def test_true_points_of_pixels_on_the_true_ring():
     err = np.linalg.norm(got - fine.points[k], axis=1)
     # linear interpolation along a wall is exact; across a corner up to ~a sample (4 mm)
     assert np.median(err) < 0.5 and err.max() < 10, (np.median(err), err.max())
+
+
+def test_the_demo_warns_in_the_users_words():
+    # its stages read files in a staging folder and calibrate with the demo's own floor
+    # plan: a warning names the final folder, and not an option the user never gave
+    import warnings
+
+    from bayescal.cli.demo import _said_as_final
+
+    with pytest.warns(UserWarning) as caught:
+        with _said_as_final("/tmp/.out.x1.bayescal-tmp", "out"):
+            warnings.warn("/tmp/.out.x1.bayescal-tmp/image/laser.csv: with --walls, pixel sds "
+                          "up to 2.87 px in 1 of 359 rows", stacklevel=1)
+    text = str(caught[0].message)
+    assert text.startswith("out/image/laser.csv: with a floor plan (the demo's data/walls.csv)")
+    assert "bayescal-tmp" not in text and "--walls" not in text

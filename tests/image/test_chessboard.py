@@ -3,13 +3,14 @@
 import os
 import pathlib
 import sys
+import warnings
 
 import numpy as np
 import pytest
 from helpers import REAL_LIKE_CAMERA, REAL_LIKE_POSES
 
 import bayescal as bc
-from bayescal.image.chessboard import order_corners
+from bayescal.image.chessboard import board_extent, order_corners
 
 pytest.importorskip("cv2")
 
@@ -111,7 +112,9 @@ def test_every_real_view_is_found():
     assert len(paths) == 5
     signs = []
     for p in paths:
-        view = bc.find_chessboard(p, board=(8, 6), square=42.0)
+        with warnings.catch_warnings():         # the whole board: no larger lattice seen
+            warnings.simplefilter("error", bc.BayescalWarning)
+            view = bc.find_chessboard(p, board=(8, 6), square=42.0)
         assert view is not None, p.name
         assert view.n_corners == 48 and view.image_size == (1280, 1024) and view.name == p.name
         g = view.pixels.reshape(6, 8, 2)
@@ -148,3 +151,63 @@ def test_a_blurred_board_is_found_by_the_fallback():
     view = bc.find_chessboard(img)
     err = view.pixels - order_corners(truth.pixels, (8, 6), center=CENTRE)
     assert np.abs(err).max() < 2.0
+
+
+def _part(truth, rows, cols, board=(8, 6)):
+    """The view of some rows and columns of a whole board's corners, labelled as a board of
+    their own (what OpenCV gives for a board option smaller than the board)."""
+    g = order_corners(truth.pixels, board, center=CENTRE).reshape(board[1], board[0], 2)
+    sub = g[np.ix_(rows, cols)]
+    return bc.BoardView(sub.reshape(-1, 2), bc.board_points((len(cols), len(rows)), 42.0))
+
+
+@pytest.mark.parametrize("k", [0, 1])
+def test_the_extent_of_a_whole_board_is_its_size(rendered, k):
+    img, truth = rendered[k]
+    assert board_extent(img, _part(truth, range(6), range(8))) == (8, 6)
+
+
+def test_the_extent_of_other_boards_and_sizes():
+    img, truth = bc.render_board(REAL_LIKE_CAMERA, REAL_LIKE_POSES[2], board=(10, 7), rng=2)
+    assert board_extent(img, _part(truth, range(7), range(10), (10, 7))) == (10, 7)
+    cam = {**REAL_LIKE_CAMERA, "gamma_u": 190.7, "gamma_v": -190.8, "u0": 401.5, "v0": 298.2}
+    img, truth = bc.render_board(cam, REAL_LIKE_POSES[3], image_size=(800, 600), rng=7)
+    g = order_corners(truth.pixels, (8, 6), center=(399.5, 299.5))
+    assert board_extent(img, bc.BoardView(g, bc.board_points((8, 6), 42.0))) == (8, 6)
+
+
+@pytest.mark.parametrize("rows, cols", [
+    ([0, 2, 4], range(8)),             # every other row: OpenCV's answer to a smaller board
+    (range(6), [1, 3, 5, 7]),          # every other column
+    (range(1, 5), range(1, 7)),        # a smaller board inside
+    (range(0, 4), range(2, 8)),        # ... at a corner of it
+    ([0, 3], range(8)),                # every third row
+])
+def test_the_extent_of_part_of_a_board_is_the_whole(rendered, rows, cols):
+    img, truth = rendered[0]
+    assert board_extent(img, _part(truth, rows, cols)) == (8, 6)
+
+
+def test_a_smaller_board_option_warns_with_the_size_seen(rendered):
+    img, _ = rendered[1]
+    with pytest.warns(bc.BayescalWarning, match=r"goes on past the 6x4 .* 6x8 seen; pass "
+                                                r"board=\(6, 8\)"):
+        view = bc.find_chessboard(img, board=(6, 4), method="sb")
+    assert view.n_corners == 24
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/para is absent")
+def test_a_smaller_board_option_on_a_real_view():
+    # OpenCV finds a 6x4 lattice on the real 8x6 board: every other row of it
+    view = bc.find_chessboard(REAL / "img_para_002.pgm", board=(6, 4), method="sb",
+                              check_extent=False)
+    assert board_extent(REAL / "img_para_002.pgm", view) == (6, 8)
+
+
+def test_a_none_from_find_chessboard_is_named_in_the_views():
+    views, _ = bc.simulate_views(n_views=2, rng=0)
+    with pytest.raises(TypeError, match=r"views\[1\] is NoneType, not a BoardView \(find_"
+                                        r"chessboard returns None for an image where it finds "
+                                        r"no whole board: leave that image out\); 2 of the 4 "
+                                        r"views are not: indices 1, 3"):
+        bc.calibrate_camera([views[0], None, views[1], None])

@@ -61,7 +61,12 @@ def test_line_numbers_count_comments_and_blank_lines(tmp_path):
     ("u,v,x,y,z\n1,2,3,4,\n", r"line 2, column 'z': empty cell"),
     ("u,v,x,y,z\n1,2,3,4,5\n1,2,3,4\n", r"line 3: 4 fields, expected 5"),
     ("u,v,u,x,y,z\n1,2,3,4,5,6\n", r"column 'u' appears twice"),
-    ("u,v,x,y,z,sigma_x\n1,2,3,4,5,-1\n", r"column 'sigma_x': '-1' is not a valid standard"),
+    ("u,v,x,y,z,sigma_x\n1,2,3,4,5,-1\n",
+     r"column 'sigma_x': '-1' is not a valid standard deviation; expected a positive number in "
+     r"mm"),
+    ("u,v,x,y,z,sigma_px\n1,2,3,4,5,-1\n",
+     r"column 'sigma_px': '-1' is not a valid standard deviation; expected a positive number in "
+     r"px"),
     ("u,v,x,y,z,sigma_x\n1,2,3,4,5,nan\n", r"column 'sigma_x': NaN is not allowed"),
     ("u,v,x,y,z,sigma_px\n1,2,3,4,5,0.1\n1,2,3,4,5,0.2\n",
      r"line 3, column 'sigma_px': sigma_px = 0.2 differs from the first value 0.1"),
@@ -70,6 +75,36 @@ def test_bad_csv_names_file_line_column(tmp_path, text, match):
     p = _write(tmp_path, text)
     with pytest.raises(InputError, match=match):
         load_laser_data(p)
+
+
+def test_a_missing_column_is_not_also_listed_as_optional(tmp_path):
+    with pytest.raises(InputError) as err:
+        load_laser_data(_write(tmp_path, "u,v,x,y\n1,2,3,4\n"))
+    msg = str(err.value)
+    assert "expected u, v, x, y, z (optional: sigma_x" in msg
+    assert "'x'" not in msg.split("optional:")[1] and ", z," not in msg.split("optional:")[1]
+
+
+def test_npz_sds_say_their_unit(tmp_path):
+    np.savez(tmp_path / "t.npz", pixels=np.zeros((2, 2)), approx_points=np.ones((2, 3)),
+             sigma_x=np.array([1.0, -2.0]))
+    with pytest.raises(InputError, match=r"sigma_x.*at least 1e-09 mm"):
+        load_laser_data(tmp_path / "t.npz")
+
+
+def test_sds_of_a_coordinate_of_zero_are_read_as_known(tmp_path, capsys):
+    # simulate_room's relative errors times a coordinate that rounds to 6e-17 mm give sds of
+    # ~1e-15 mm: the library fits them; a file holding them is read with the floor, said
+    p = _write(tmp_path, "u,v,x,y,z,sigma_x,sigma_y\n1,2,3,4,5,3.9e-15,7\n1,2,3,4,5,8,9\n")
+    d = load_laser_data(p)
+    np.testing.assert_array_equal(d.sigma_scene[:, :2], [[1e-9, 7], [8, 9]])
+    err = capsys.readouterr().err
+    assert "below 1e-09 on line(s) 2 (sigma_x)" in err and "read as 1e-09" in err
+    np.savez(tmp_path / "t.npz", pixels=np.zeros((2, 2)), approx_points=np.ones((2, 3)),
+             sigma_x=np.array([1.0, 3.9e-15]))
+    assert load_laser_data(tmp_path / "t.npz").sigma_scene[1, 0] == 1e-9
+    assert "array 'sigma_x': 1 standard deviation(s) below 1e-09 (index 1)" in \
+        capsys.readouterr().err
 
 
 def test_missing_file_and_not_utf8(tmp_path):

@@ -75,3 +75,22 @@ def test_an_interrupt_before_the_commit_leaves_the_old_folder_untouched(tmp_path
             raise KeyboardInterrupt
     assert not folder.committed and (out / "a.txt").read_text() == "old a"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_the_messages_suggest_what_works(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("x")
+    (tmp_path / "mine-2").mkdir()
+    for force in (False, True):       # not bayescal's: --force would be refused, so not offered
+        with pytest.raises(UsageError, match=r"--force or not: choose a new or empty folder, "
+                                             r"e\.g\. --out .*mine-3") as err:
+            check_out(mine, force=force)
+        assert "pass --force" not in str(err.value)
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "result.json").write_text("{}")
+    (run / MANIFEST).write_text(json.dumps({"written_by": "bayescal", "files": ["result.json"]}))
+    with pytest.raises(UsageError, match=r"holds an earlier bayescal run; pass --force to replace "
+                                         r"it, or choose another --out, e\.g\. .*run-2"):
+        check_out(run, force=False)

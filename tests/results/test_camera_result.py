@@ -43,3 +43,36 @@ def test_model_check_and_summary(cam):
     mc = cam.model_check()
     assert len(mc["views"]) == 4 and 0.1 < mc["rms"] < 0.5
     assert "gamma_u" in cam.summary() and "all used" in cam.summary()
+
+
+def test_a_binary_file_is_named_not_decoded(tmp_path):
+    (tmp_path / "img.png").write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe\x00\x01")
+    with pytest.raises(bc.BayescalError, match=r"img\.png: not a text file; expected a camera"):
+        bc.load_camera(tmp_path / "img.png")
+
+
+def test_intrinsics_the_views_leave_open_are_flagged(cam):
+    cam, _ = cam
+    assert cam.unidentified() == []
+    assert "NOT IDENTIFIED" not in cam.summary()
+    cov = cam.covariance().copy()
+    cov[0, 0] = 4.0 * cam.intrinsics["xi"] ** 2          # sd twice the value
+    cov[3, 3] = -1.0                                     # no sd at all
+    open_ = bc.CameraResult(cam.k, cov, cam.poses, cam.residuals, cam.view_names,
+                            noise=cam.noise, sigma=cam.sigma, tau=cam.tau,
+                            image_size=cam.image_size)
+    assert open_.unidentified() == ["xi", "u0"]
+    text = open_.summary()
+    assert text.count("NOT IDENTIFIED (sd >= |value|)") == 2
+    assert "the views do not determine xi, u0" in text
+
+
+def test_calibrate_camera_warns_when_the_views_leave_the_camera_open():
+    # every other row of each view taken for the next (a board option smaller than the
+    # board): the fit leaves xi and gamma_v with an sd above their value (seed 0)
+    views, _ = bc.simulate_views(n_views=4, rng=0)
+    parts = [bc.BoardView(v.pixels.reshape(6, 8, 2)[[0, 2, 4]].reshape(-1, 2),
+                          bc.board_points((8, 3), 42.0), name=v.name) for v in views]
+    with pytest.warns(bc.BayescalWarning, match=r"the views do not determine the camera: xi ="):
+        res = bc.calibrate_camera(parts)
+    assert res.unidentified() == ["xi", "gamma_v"]

@@ -121,3 +121,18 @@ def test_fast_path_covers_held_out_truth_over_replications():
     print(f"held-out 90 % ellipsoid coverage over 40 replications: {frac:.3f} "
           f"(per replication sd {sd:.3f}; 99 % band 0.9 +- {half:.3f})")
     assert abs(frac - 0.9) <= half
+
+
+def test_pixels_whose_rays_all_miss_the_cone_are_said():
+    # pixels of a 1280x1024 camera given to an 800x600 calibration: no ray meets the cone
+    ds = bc.simulate_room(range_mm=1000, n_points=60, sigma_px=0.3, approx_error=0.02,
+                          approx_model="gaussian", rng=2)
+    res = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.3,
+                                    sigma_scene=ds.sigma_scene)
+    far = np.array([[1100.0, 950.0], [1150.0, 900.0], [1000.0, 1000.0]])
+    with pytest.warns(bc.BayescalWarning, match="none of the 3 pixels' rays meets the laser"):
+        rec = res.reconstruct(far)
+    assert not rec.valid.any()
+    with warnings.catch_warnings():                  # some rays meeting it: no warning
+        warnings.simplefilter("error", bc.BayescalWarning)
+        res.reconstruct(np.vstack([far, ds.pixels[:2]]))
