@@ -17,9 +17,9 @@ from .fit.sequential import calibrate_sequential, sequential_residuals
 from .fit.simultaneous import calibrate_simultaneous
 from .image.chessboard import board_extent, find_chessboard
 from .image.extract import LaserPixels, extract_laser
-from .image.frames import TrackedPixels
 from .image.read import read_image
-from .image.track import LaserTracker, track_laser
+from .image.ringcv import RingCV, ring_cross_validation
+from .image.track import LaserTracker, TrackedPixels, track_laser
 from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
@@ -116,6 +116,8 @@ __all__ = [
     "render_sequence",
     "read_image",
     "LaserPixels",
+    "ring_cross_validation",
+    "RingCV",
     "BoardView",
     "board_points",
     "find_chessboard",

@@ -12,7 +12,7 @@ size (``bc.calibrate_simultaneous`` on a simulated room, then its prepared
 ``Reconstructor``). Targets: the tracker <= 33 ms per 960x720 frame and <= 50 ms per
 1232x1028 frame, extraction + reconstruction <= 40 ms, the full extractor <= 1 s. The
 agreement of each tracked frame with the full extractor's extraction of it
-(``bayescal.image.frames.agreement``) and, for rendered frames, both against the true centre
+(``agreement`` of ``tests/image/score.py``) and, for rendered frames, both against the true centre
 line, are printed too. Writes its section of docs/performance.md (inside "Where the time
 goes", which ``studies/benchmark.py`` keeps).
 
@@ -35,7 +35,9 @@ import time
 import numpy as np
 
 import bayescal as bc
-from bayescal.image.frames import agreement
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests" / "image"))
+from score import agreement  # noqa: E402
 
 __all__ = ["main"]
 

@@ -36,7 +36,7 @@ def _paths(images):
 def build_extract(**options):
     """The job of ``bayescal extract``: :class:`~bayescal.cli.jobs.ExtractJob` for one image
     file, :class:`FramesJob` for several, a folder or a video."""
-    from ..image.frames import VIDEO_SUFFIXES
+    from ..image.read import VIDEO_SUFFIXES
 
     paths = _paths(options.get("image"))
     if len(paths) == 1 and paths[0].is_file() and paths[0].suffix.lower() not in VIDEO_SUFFIXES:
@@ -66,7 +66,7 @@ class FramesJob:
     def build(cls, **options):
         """Validated job: the frames named and counted, the laser-off image read, before
         anything is written."""
-        from ..image.frames import count_frames, frame_names
+        from ..image.read import count_frames, frame_names
 
         o = _opts(op.EXTRACT_OPTIONS, options)
         paths = _paths(o["image"])
@@ -104,7 +104,7 @@ def run_extract(job, folder):
 
 def _frames(job):
     """``(name, image)`` per frame; an unreadable frame is bad input (exit 2)."""
-    from ..image.frames import iter_frames
+    from ..image.read import iter_frames
 
     it = iter_frames(job.frames, channel=job.channel)
     while True:

@@ -126,6 +126,7 @@ def write_images(folder, ds, *, seed, image_size=(800, 600)):
 def run_extract(job, folder):
     """Extract the laser pixels; write ``laser.csv`` and ``overlay.png``."""
     from ..image.extract import extract_laser
+    from ..image.ringcv import ring_cv_line
     from ..plotting.basic import savefig
     from ..plotting.image import plot_laser_overlay
 
@@ -134,15 +135,15 @@ def run_extract(job, folder):
                            along_sd=job.along_sd, radius=job.radius, channel=job.channel)
     except ExtractionError as exc:          # an implausible ring is bad input: exit 2
         raise UsageError(f"{job.image_path}: {exc.reason}. {EXTRACTION_ADVICE}") from None
-    p = folder.path
+    p, cv = folder.path, ring_cv_line(lp)
     write_laser_pixels(p / "laser.csv", lp, job.image_path.name,
-                       image_size=job.image.shape[1::-1])
+                       image_size=job.image.shape[1::-1], extra_note=f"\n{cv}")
     savefig(plot_laser_overlay(job.image, lp), p / "overlay.png")
     folder.add(p / "laser.csv", p / "overlay.png")
     sd = np.nanmedian(lp.sd_normal[~lp.flagged])      # flagged points may have no sd
     print(f"{len(lp)} laser pixels ({int(lp.flagged.sum())} flagged), median sd across the "
           f"ring {sd:.3f} px (unflagged); wrote {job.out / 'laser.csv'}, "
-          f"{job.out / 'overlay.png'}")
+          f"{job.out / 'overlay.png'}\n{cv}")
 
 
 def write_laser_pixels(path, lp, image_name, *, rows=None, extra_note="", image_size=None):

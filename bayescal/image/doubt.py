@@ -21,18 +21,30 @@ from .peak import bilinear
 from .ring import circle_fit
 
 __all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
-           "is_white", "ADVICE",
-           "COLOUR_RATIO"]
+           "is_white", "ADVICE", "COLOUR_RATIO", "COLOUR_CORE", "COLOUR_FLANK", "DISC_LIT", "LEAD",
+           "PATH_SNR"]
 
-#: a laser lives in one colour channel: the ring's median height in the brightest other
-#: channel is at most COLOUR_RATIO of its height in the laser's channel, or it is no laser
-#: of that colour (red lasers of three renderers: 0.06-0.18 over 22 images; a white rail
-#: returned as the ring in red images without a laser: 0.93-1.38 over 6)
-COLOUR_RATIO = 0.5
+#: a laser lives in one colour channel: the ring's median light (over its lower flank,
+#: within COLOUR_CORE px of the point) in the brightest other channel is at most
+#: COLOUR_RATIO of that in the laser's channel, or it is no laser of that colour. Measured:
+#: the real red rings 0.29-0.34 (eight dark frames), 0.55 (the lit frame's faint ring),
+#: rings composited onto the second real sensor's frame 0.11-0.38, the red lasers of three
+#: renderers 0.15-0.27; renderer2's white rail returned as the ring in its red rooms without
+#: a laser 1.02-1.45 (seeds 0-2): 1.36x margins either side (docs/images.md). At the peak
+#: pixel alone the real rings reached 0.47-0.53, refused by the former rule (0.5)
+COLOUR_RATIO = 0.75
 
 #: what to try when an extraction is implausible (the command line says it with its options)
 ADVICE = ("Try a laser-off image of the same view (background=...), the centre of the mirror's "
           "image (center=(u, v)), or the laser's colour channel (channel=...)")
+
+
+#: a mirror's image is lit inside, not only at its edge: the median grey level of the disc
+#: between 0.4 and 0.85 of its radius (over the image's dark level) is at least DISC_LIT
+#: of the 90th percentile at its rim (0.85-1.0). Measured (docs/images.md): 0.64-1.31 on
+#: the mirror images of three renderers and the two lit real frames; 0.00-0.02 where a
+#: bright laser ring in a dark real frame filled to a disc
+DISC_LIT = 0.25
 
 
 def mirror_disc(raw):
@@ -60,6 +72,13 @@ def mirror_disc(raw):
         return None
     c, R, res = circle_fit(np.column_stack([uu, vv]) * step + (step - 1) / 2.0)
     if not np.all(np.isfinite(c)) or np.median(np.abs(res)) > 0.05 * R:
+        return None
+    # lit inside, not only at its edge: a bright ring in a dark frame fills to a disc too
+    vg, ug = np.mgrid[:small.shape[0], :small.shape[1]] * step + (step - 1) / 2.0
+    rr = np.hypot(ug - c[0], vg - c[1]) / R
+    inner, rim = small[(rr > 0.4) & (rr < 0.85)], small[(rr >= 0.85) & (rr < 1.0)]
+    if len(inner) < 20 or len(rim) < 20 or \
+            np.median(inner) - lo < DISC_LIT * (np.quantile(rim, 0.9) - lo):
         return None
     return c, R
 
@@ -128,8 +147,23 @@ def _without_stripes(blobs):
     return np.concatenate([[False], ~stripe])[lab]
 
 
+#: a laser ring is one closed curve, its light there at every azimuth. Where more than a
+#: fifth of the ring found is flagged, two things must hold along its whole path: (1) half
+#: of its azimuths hold a peak of PATH_SNR noise sds or more (the median over the path,
+#: flagged azimuths included): measured 21-290 on laser rings with that much flagged or
+#: more (our 1280x1024 renders over strong texture, real frames) and 37 on the lit real
+#: frame's faint ring, against 0-7.4 on ring-less images (three renderers, the second
+#: real sensor's laser-off frame, the lit real frame's wall, our 1280x1024 laser-off
+#: renders): 1.7x margins either side; (2) it holds a point the extractor trusts (on its
+#: smooth curve) on LEAD more of its azimuths than the best closed path 8 px or more off it,
+#: measured the same way: rings lead by 0.39-0.67, texture alone by -0.37 to 0.42 (a guard
+#: where a second ring-like path exists). docs/images.md
+PATH_SNR = 12.0
+LEAD = 0.2
+
+
 def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=0.5,
-               closure=0, gains=(np.nan, np.nan), min_margin=1.5):
+               closure=0, snr=None, rival=None, hinted=False):
     """Raise :class:`~bayescal.errors.ExtractionError` if the ring found is implausible.
 
     Parameters
@@ -141,40 +175,41 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
     radius : float
         Its radius, px.
     mirror : tuple or None
-        ``(center, radius)`` of the mirror's image, px.
+        ``(center, radius)`` of the mirror's image, px (None: not judged).
     expected : tuple of float or None
         ``(low, high)``: the ring's expected radius range, px.
     min_kept : float
         Smallest fraction of unflagged azimuths.
     closure : int
         Radial mismatch (px) of the dynamic-programming path after one lap.
-    gains : tuple of float
-        Mean ridge score per azimuth of the ring's path and of the best closed path off it
-        (:func:`~bayescal.image.ring.ring_path`); NaN skips the test.
-    min_margin : float
-        Smallest lead of the ring over that runner-up, noise sds per azimuth, when more
-        than 20 % of the ring is flagged: on wall texture alone the best two closed paths
-        score alike.
+    snr : ndarray, shape (N,), or None
+        The peak's height over the noise sd at every azimuth of the ring's path (None skips
+        the test): a laser ring's median is :data:`PATH_SNR` or more when more than a fifth
+        of it is flagged.
+    rival : ndarray of bool, shape (M,), or None
+        The flags of the best closed path 8 px or more off the ring, measured the same way
+        (None skips the test): a laser ring holds trusted points on :data:`LEAD` more of
+        its azimuths when more than a fifth of it is flagged.
+    hinted : bool
+        The search was told where to look (a centre or radius): the messages say so.
     """
     n = len(flagged)
     kept = int(np.count_nonzero(~flagged))
+    where = _where(center, radius, hinted, kept)
     if n == 0 or kept < 12:
-        raise ExtractionError(f"no laser ring found: {kept} of {n} azimuths hold a point the "
-                              "extractor trusts", ADVICE)
+        raise ExtractionError(f"no laser ring found{' there' if hinted else ''}: {kept} of {n} "
+                              "azimuths hold a point the extractor trusts", ADVICE)
     # a clear ring (few points flagged) stands on its own, whatever the texture's best
-    if gains[0] - gains[1] < min_margin and n - kept > 0.2 * n:
-        raise ExtractionError(f"no ring stands out of the image: the best closed ridge scores "
-                              f"{gains[0]:.1f} noise sds per azimuth, the best other one "
-                              f"{gains[1]:.1f} (a laser ring leads by {min_margin:g} or more); "
-                              "wall texture or a pattern, not a laser ring", ADVICE)
+    if n - kept > 0.2 * n:
+        _stands_out(kept / n, snr, rival, where, hinted)
     if kept < min_kept * n:
-        raise ExtractionError(f"most of the ring is flagged: {n - kept} of {n} azimuths "
+        raise ExtractionError(f"most of the ring{where} is flagged: {n - kept} of {n} azimuths "
                               f"({100 * (n - kept) / n:.0f} %) are distractors or too faint "
                               f"(at most {100 * (1 - min_kept):.0f} % allowed)", ADVICE)
     if not np.isfinite(radius) or abs(closure) > max(3.0, 0.05 * radius):
-        raise ExtractionError(f"the ring found does not close on itself (it ends {closure} px "
-                              "from where it started, after one turn): not a laser ring",
-                              ADVICE)
+        raise ExtractionError(f"the ring found{where} does not close on itself (it ends "
+                              f"{closure} px from where it started, after one turn): not a "
+                              "laser ring", ADVICE)
     if mirror is not None:
         mc, mr = mirror
         off = float(np.hypot(*(np.asarray(center) - mc)))
@@ -183,39 +218,102 @@ def check_ring(flagged, center, radius, *, mirror=None, expected=None, min_kept=
                 f"the ring found (centre ({center[0]:.0f}, {center[1]:.0f}), radius "
                 f"{radius:.0f} px) is far from the mirror's image (centre ({mc[0]:.0f}, "
                 f"{mc[1]:.0f}), radius {mr:.0f} px)",
-                ADVICE + ", or the ring's radius range in px (radius=(low, high)): a bright "
-                "rim of the mirror is a closed ring too")
+                ADVICE + ", or the ring's centre and radius range in px (center=(u, v), "
+                "radius=(low, high)): a bright rim of the mirror is a closed ring too, and a "
+                "fisheye's ring need not sit inside its disc")
     if expected is not None and not expected[0] <= radius <= expected[1]:
         raise ExtractionError(f"the ring found has radius {radius:.0f} px, outside the "
                               f"expected {expected[0]:g}-{expected[1]:g} px", ADVICE)
 
 
-def _ridge_heights(gray, center, pixels):
-    """Height (grey levels) of a ridge at each of ``pixels`` (N, 2) over the lower of its two
-    flanks (the means of the samples 3-5 px either side along the ray from ``center``), and
-    the value at the pixel."""
+def _stands_out(f, snr, rival, where, hinted):
+    """Raise "no ring stands out" unless the path's median SNR reaches :data:`PATH_SNR` and
+    its trusted fraction ``f`` leads the rival path's by :data:`LEAD`."""
+    there = " there" if hinted else " of the image"
+    if snr is not None:
+        s = float(np.median(np.clip(np.nan_to_num(snr, nan=0.0), 0.0, None)))
+        if s < PATH_SNR:
+            raise ExtractionError(
+                f"no ring stands out{there}: along the ring found{where}, half of the "
+                f"azimuths hold a peak of {s:.1f} noise sds or less (a laser ring's path "
+                f"stands at {PATH_SNR:g} or more) and {100 * (1 - f):.0f} % of it is flagged; "
+                "wall texture or a pattern, not a laser ring", ADVICE)
+    if rival is not None:
+        f_other = float(np.mean(~np.asarray(rival, bool)))
+        if f - f_other < LEAD:
+            raise ExtractionError(
+                f"no ring stands out{there}: the ring found{where} holds a point the extractor "
+                f"trusts on {100 * f:.0f} % of its azimuths, the best other closed path "
+                f"{100 * f_other:.0f} % (a laser ring, one continuous curve, leads by "
+                f"{100 * LEAD:.0f} points or more); wall texture or a pattern, not a laser ring",
+                ADVICE)
+
+
+def _where(center, radius, hinted, kept):
+    """`` (centre (u, v), radius R px)`` of the ring found, said when the user gave hints
+    and there are enough points to fit it."""
+    if not hinted or kept < 3 or not np.isfinite(radius):
+        return ""
+    return f" (centre ({center[0]:.0f}, {center[1]:.0f}), radius {radius:.0f} px)"
+
+
+#: the ridge's light in a channel is its mean over the samples within COLOUR_CORE px of the
+#: point along the ray, over the lower of its two flanks (the means of the samples
+#: COLOUR_FLANK px either side): its area, not its peak. A colour image stored with its
+#: chroma at reduced resolution (JPEG, a camera's video stream) or demosaiced keeps a thin
+#: stripe's middle pixel in every channel, the laser's colour spread to its sides; over the
+#: stripe and those sides the other channels' share is the light's own (real red rings:
+#: 0.47-0.53 at the peak pixel, 0.29-0.34 over +-4 px; +-3 and +-5 px gave 0.30-0.37 and
+#: 0.30-0.34; docs/images.md)
+COLOUR_CORE = 4
+COLOUR_FLANK = (6, 7, 8)
+
+
+def _ridge_heights(grays, center, pixels):
+    """Light (grey levels per px) of a ridge at each of ``pixels`` (N, 2) over the lower of
+    its two flanks along the ray from ``center`` (:data:`COLOUR_CORE`,
+    :data:`COLOUR_FLANK`), and the value at the pixel: a pair of (N,) arrays for each image
+    of ``grays`` (the same samples read in each)."""
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
+    fl = np.asarray(COLOUR_FLANK, float)
+    core = np.arange(-COLOUR_CORE, COLOUR_CORE + 1, dtype=float)
+    offs = np.concatenate([-fl, fl, core])                        # all samples at once
+    q = center + e[:, None, :] * (r[:, None] + offs[None, :])[..., None]
+    _, idx, wts = bilinear(grays[0], q[..., 0], q[..., 1])
+    m = len(fl)
+    out = []
+    for gray in grays:
+        v = np.sum(gray[idx[..., 0], idx[..., 1]] * wts, axis=-1)   # (N, S), as bilinear's
+        low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
+        out.append((v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]))
+    return out
 
-    def at(rr):
-        q = center + e * rr[:, None]
-        return bilinear(gray, q[:, 0], q[:, 1])[0]
 
-    flanks = [np.mean([at(r + sgn * s) for s in (3, 4, 5)], axis=0) for sgn in (-1, 1)]
-    peak = at(r)
-    return peak - np.minimum(*flanks), peak
-
-
-def _grey(image, img, channel):
-    """Whether a colour image is a grey one stored in colour: its other channels within 2
-    grey levels (of 255 over the type's range) of ``channel`` at 99 % of the pixels or
-    more (exactly equal, or a grey JPEG's chroma noise)."""
-    dt = np.asarray(image).dtype
-    top = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(img.max())
+def _grey(arr, channel):
+    """Whether a colour image ``arr`` (H, W, C) is a grey one stored in colour: its other
+    channels within 2 grey levels (of 255 over the type's range) of ``channel`` at 99 % of
+    the pixels or more (exactly equal, or a grey JPEG's chroma noise). Integer images are
+    compared in integers (the same verdicts, without a float copy of the image)."""
+    integer = np.issubdtype(arr.dtype, np.integer)
+    top = float(np.iinfo(arr.dtype).max) if integer else float(arr.max())
     tol = 2.0 * max(top, 1e-12) / 255.0
-    return all(np.mean(np.abs(img[..., k] - img[..., channel]) <= tol) >= 0.99
+    mine = arr[..., channel].astype(np.int64 if arr.dtype.itemsize > 2 else np.int32) \
+        if integer else arr[..., channel].astype(float)
+    return all(np.mean(np.abs(arr[..., k] - mine) <= tol) >= 0.99
                for k in range(3) if k != channel)
+
+
+class _Difference:
+    """``a - b`` (two images, as floats), computed at the pixels where it is read (an
+    array's indexing and shape): a laser-off image subtracted without a copy of either."""
+
+    def __init__(self, a, b):
+        self.a, self.b, self.shape = a, b, a.shape
+
+    def __getitem__(self, key):
+        return self.a[key].astype(float) - self.b[key].astype(float)
 
 
 def colour_heights(image, background, channel, pixels, center, *, min_points=12):
@@ -244,22 +342,24 @@ def colour_heights(image, background, channel, pixels, center, *, min_points=12)
     tuple of float or None
         ``(own, other)``.
     """
-    img = np.asarray(image, dtype=float)
-    if img.ndim != 3 or img.shape[2] < 3 or len(pixels) < min_points \
-            or _grey(image, img, channel):
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] < 3 or len(pixels) < min_points or _grey(arr, channel):
         return None
     c = np.asarray(center, dtype=float)
-    dt = np.asarray(image).dtype
-    if np.issubdtype(dt, np.integer):   # where the laser's channel clips, its height is unknown
-        pixels = pixels[_ridge_heights(img[..., channel], c, pixels)[1] < np.iinfo(dt).max - 0.5]
-        if len(pixels) < min_points:
+    if background is None:
+        chan = [arr[..., k] for k in range(3)]
+    else:                               # a grey laser-off image is taken for every channel
+        bg = np.asarray(background)
+        chan = [_Difference(arr[..., k], bg[..., k] if bg.ndim == 3 else bg) for k in range(3)]
+    order = [channel] + [k for k in range(3) if k != channel]
+    heights = _ridge_heights([chan[k] for k in order] + [arr[..., channel]], c, pixels)
+    if np.issubdtype(arr.dtype, np.integer):    # where the laser's channel clips, its height
+        keep = heights[-1][1] < np.iinfo(arr.dtype).max - 0.5   # is unknown
+        if np.count_nonzero(keep) < min_points:
             return None
-    if background is not None:          # a grey laser-off image is taken for every channel
-        bg = np.asarray(background, dtype=float)
-        img = img - (bg[..., :3] if bg.ndim == 3 else bg[..., None])
-    own = float(np.median(_ridge_heights(img[..., channel], c, pixels)[0]))
-    other = max(float(np.median(_ridge_heights(img[..., k], c, pixels)[0]))
-                for k in range(3) if k != channel)
+        heights = [(h[keep], v[keep]) for h, v in heights]
+    own = float(np.median(heights[0][0]))
+    other = max(float(np.median(h)) for h, _ in heights[1:3])
     return own, other
 
 

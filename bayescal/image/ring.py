@@ -15,13 +15,26 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d, map_coordinates, median_filter
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.ndimage import gaussian_filter1d, map_coordinates
 
-__all__ = ["PolarImage", "polar_image", "ridge_near", "ring_path", "circle_fit", "ring_model",
-           "ring_priors", "ring_curve"]
+__all__ = ["PolarImage", "polar_image", "running_median", "ridge_near", "ridge_crest",
+           "ring_path", "circle_fit", "ring_model", "ring_priors", "ring_curve", "PATH_CAP", "TIE",
+           "QUANTUM_SD"]
 
 #: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
 PATH_CAP = 8.0
+
+#: a path's gain per azimuth for running on a capped sample of higher score than another:
+#: a tie-break, far below any step's cost (without it the path kept to a bright stripe's
+#: inner flank, 3-4 px off its crest on real frames)
+TIE = 1e-6
+
+#: the least scale of the ridge score in an integer image, grey levels: its quantisation
+#: alone (sd 1/sqrt(12)) through the score's high-pass and 1-px smoothing (0.25-0.37 of a
+#: pixel's white noise, measured; the least taken). A frame that is black but for the ring
+#: has no spread at all: every sample the ring's light reaches scored 1e6-1e10 sds
+QUANTUM_SD = 0.25 / np.sqrt(12.0)
 
 #: first radius of the profiles, px (the centre's few pixels carry no ring)
 R_MIN = 3.0
@@ -37,31 +50,80 @@ class PolarImage:
     radii : ndarray, shape (K,)
     values, base, high, score : ndarray, shape (n, K)
         Samples; their running radial median; ``values - base``; the ridge score (the
-        high-pass smoothed over 1 px and divided by its local robust sd).
+        high-pass smoothed over 1 px and divided by its local robust sd, at least
+        ``floor``).
     valid : ndarray of bool, shape (n, K)
     """
 
-    def __init__(self, img, center, phi, radii, highpass_px, sub=2):
+    def __init__(self, img, center, phi, radii, highpass_px, sub=2, floor=0.0):
         self.center, self.phi, self.radii = np.asarray(center, float), phi, radii
         #: azimuth offsets of the rays averaged into one profile (they share its pixels)
         self.sub = (np.arange(sub) - (sub - 1) / 2.0) * (2 * np.pi / len(phi)) / sub
         H, W = img.shape
-        self.values = 0.0
-        for d in self.sub:
-            u = self.center[0] + np.cos(phi + d)[:, None] * radii[None]
-            v = self.center[1] + np.sin(phi + d)[:, None] * radii[None]
-            vals = map_coordinates(img, [v.ravel(), u.ravel()], order=1, mode="nearest")
-            self.values = self.values + vals.reshape(u.shape) / sub
+        self.values = self.sample(img)
+        u = self.center[0] + np.cos(phi + self.sub[-1])[:, None] * radii[None]
+        v = self.center[1] + np.sin(phi + self.sub[-1])[:, None] * radii[None]
         self.valid = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-        w = max(5, int(highpass_px) | 1)
-        self.base = median_filter(self.values, size=(1, w), mode="nearest")
+        self.base = running_median(self.values, max(5, int(highpass_px) | 1))
         self.high = np.where(self.valid, self.values - self.base, 0.0)
-        smooth = gaussian_filter1d(self.high, 1.0, axis=1)
-        self.scale = _local_sd(smooth, self.valid)
-        # near the centre neighbouring profiles sample the same pixels: one azimuth step
-        # there is less than a pixel of new evidence, and a blob would pass for a ring
-        arc = np.minimum(1.0, radii * (2 * np.pi / len(phi)))
-        self.score = np.where(self.valid, smooth / self.scale, 0.0) * arc[None, :]
+        self._floor, self._score, self._scale = floor, None, None
+
+    @property
+    def score(self):
+        """The ridge score (n, K), computed when first read (measuring a ring whose path
+        is known needs none)."""
+        if self._score is None:
+            smooth = gaussian_filter1d(self.high, 1.0, axis=1)
+            self._scale = np.maximum(_local_sd(smooth, self.valid), self._floor)
+            # near the centre neighbouring profiles sample the same pixels: one azimuth step
+            # there is less than a pixel of new evidence, and a blob would pass for a ring
+            arc = np.minimum(1.0, self.radii * (2 * np.pi / len(self.phi)))
+            self._score = np.where(self.valid, smooth / self._scale, 0.0) * arc[None, :]
+        return self._score
+
+    @score.setter
+    def score(self, value):
+        self._score = value
+
+    @property
+    def scale(self):
+        """The ridge score's local noise sd (n, K)."""
+        if self._scale is None:
+            _ = self.score
+        return self._scale
+
+    def sample(self, image):
+        """``image`` (H, W) along the profiles (n, K): bilinear, each sample the mean of the
+        profile's rays."""
+        out = 0.0
+        for d in self.sub:
+            u = self.center[0] + np.cos(self.phi + d)[:, None] * self.radii[None]
+            v = self.center[1] + np.sin(self.phi + d)[:, None] * self.radii[None]
+            vals = map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="nearest")
+            out = out + vals.reshape(u.shape) / len(self.sub)
+        return out
+
+    def sample_mask(self, mask):
+        """A boolean image ``mask`` (H, W) at the profiles' samples (n, K), nearest pixel."""
+        u = self.center[0] + np.cos(self.phi)[:, None] * self.radii[None]
+        v = self.center[1] + np.sin(self.phi)[:, None] * self.radii[None]
+        H, W = mask.shape
+        return mask[np.clip(np.rint(v).astype(int), 0, H - 1),
+                    np.clip(np.rint(u).astype(int), 0, W - 1)]
+
+
+def running_median(values, width):
+    """The running median of ``width`` (odd) samples along each row of ``values`` (n, K),
+    the rows' end samples repeated beyond them: ``median_filter(values, size=(1, width),
+    mode="nearest")``'s numbers, by a partial sort of each window (2x faster)."""
+    h = width // 2
+    padded = np.pad(values, ((0, 0), (h, h)), mode="edge")
+    out = np.empty(values.shape)
+    step = max(1, 2 ** 20 // max(values.size // max(len(values), 1) * width, 1))
+    for i in range(0, len(values), step):        # in blocks: each window is copied once
+        win = sliding_window_view(padded[i:i + step], width, axis=1)
+        out[i:i + step] = np.partition(win, h, axis=-1)[..., h]
+    return out
 
 
 def _local_sd(x, valid, *, block=(8, 32)):
@@ -99,23 +161,43 @@ def ridge_near(pol, k, half):
     return cand[np.arange(len(cand)), np.argmax(np.take_along_axis(pol.high, cand, 1), axis=1)]
 
 
-def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN):
+def ridge_crest(pol, k, *, reach=8):
+    """Per profile, the sample reached from index ``k`` (n,) by climbing the high-passed
+    profile uphill (at most ``reach`` samples): the crest of the ridge the path runs on.
+    A bright stripe scores past the path's cap over several px, where the path is free to
+    run on its flank."""
+    K = len(pol.radii)
+    k = np.clip(np.asarray(k).copy(), 1, K - 2)
+    rows = np.arange(len(k))
+    for _ in range(int(reach)):
+        h = pol.high[rows[:, None], k[:, None] + np.arange(-1, 2)[None]]
+        step = np.argmax(h, axis=1) - 1
+        if not step.any():
+            break
+        k = np.clip(k + step, 1, K - 2)
+    return k
+
+
+def polar_image(img, center, *, n_azimuth, r_max, highpass_px=15, r_min=R_MIN, floor=0.0):
     """The :class:`PolarImage` of ``img`` around ``center`` from ``r_min`` (an integer
-    offset from :data:`R_MIN`) out to ``r_max`` px."""
+    offset from :data:`R_MIN`) out to ``r_max`` px; ``floor``: the least scale of its
+    score (:data:`QUANTUM_SD` for an integer image)."""
     # mid-step azimuths: one profile in the middle of each of n equal sectors (of each
     # degree for n = 360)
     phi = np.linspace(-np.pi, np.pi, int(n_azimuth), endpoint=False) + np.pi / int(n_azimuth)
     r0 = R_MIN + max(0.0, np.floor(r_min - R_MIN))
     radii = np.arange(r0, max(float(r_max), r0 + 8.0))
-    return PolarImage(img, center, phi, radii, highpass_px)
+    return PolarImage(img, center, phi, radii, highpass_px, floor=floor)
 
 
-def ring_path(score, *, cap=None, jump=2, penalty=0.5):
+def ring_path(score, *, cap=None, jump=2, penalty=0.5, tie=None):
     """The closed ridge through ``score`` (n azimuths x K radii) by dynamic programming.
 
     The path takes one radius index per azimuth, moves at most ``jump`` indices between
     neighbouring azimuths at a cost of ``penalty`` per index, and maximises the sum of
-    ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`).
+    ``min(score, cap)`` (a lamp cannot buy a detour; ``cap`` defaults to :data:`PATH_CAP`);
+    ties between capped samples go to the higher ``tie`` (default ``score``), by at most
+    :data:`TIE` per azimuth (a log of the excess, so that it tells scores of 1e3 from 1e9).
     Closure: the recursion runs over two
     laps and the path is read off the middle lap, far from both ends.
 
@@ -130,23 +212,25 @@ def ring_path(score, *, cap=None, jump=2, penalty=0.5):
         Mean capped score per azimuth along the path, net of its step penalties.
     """
     n, K = score.shape
-    S = np.minimum(score, PATH_CAP if cap is None else cap)
+    c = PATH_CAP if cap is None else cap
+    # ties (a stripe past the cap over several px) broken toward the higher score, not the
+    # first index: a path on such a run keeps to its crest, not its inner flank
+    S = np.minimum(score, c) + TIE * np.log1p(np.maximum((score if tie is None else tie) - c,
+                                                          0.0)) / 64.0
     offs = np.arange(-jump, jump + 1)
     pen = penalty * np.abs(offs)
-    buf = np.empty((len(offs), K))
     back = np.empty((2 * n, K), dtype=np.int8)
     D = S[0].copy()
     cols = np.arange(K)
+    # the running score padded with -inf: window row k holds D[k + d] for every step d
+    Dp = np.full(K + 2 * jump, -np.inf)
+    win = np.lib.stride_tricks.sliding_window_view(Dp, len(offs))
     for t in range(1, 2 * n):
-        buf.fill(-np.inf)
-        for j, d in enumerate(offs):          # buf[j, k] = D[k + d] - pen[j]
-            if d >= 0:
-                buf[j, :K - d] = D[d:] - pen[j]
-            else:
-                buf[j, -d:] = D[:K + d] - pen[j]
-        arg = np.argmax(buf, axis=0)
+        Dp[jump:jump + K] = D
+        cand = win - pen
+        arg = np.argmax(cand, axis=1)
         back[t] = arg
-        D = buf[arg, cols] + S[t % n]
+        D = cand[cols, arg] + S[t % n]
     path = np.empty(2 * n, dtype=int)
     path[-1] = int(np.argmax(D))
     for t in range(2 * n - 1, 0, -1):

@@ -1,44 +1,59 @@
-"""Follow the laser ring from frame to frame: :func:`track_laser` and :class:`LaserTracker`.
+"""Follow the laser ring from frame to frame: :func:`track_laser`, :class:`LaserTracker`.
 
 Between two frames of a moving sensor the ring moves by a few pixels. The full extractor
 (:func:`~bayescal.image.extract.extract_laser`) spends its time finding the ring; the
 tracker takes the previous frame's ring as its prior: it looks for the ring within
-:data:`BAND_PX` of it on :data:`COARSE_RAYS` rays, fits its motion, reads the profiles in a
-band of :data:`REACH` px about the moved ring only and measures the points there with the
-full extractor's own peak fits, gates and covariances
-(:func:`~bayescal.image.extract.measure_ring`), the noise fitted on every
-:data:`NOISE_PIXELS` px of evenly spaced rows. The first frame, and any frame where the
-ring is lost, goes
-through the full extractor; a frame it refuses comes back empty, with the error, and the
-sequence goes on (``docs/images.md``).
+:data:`BAND_PX` of it on :data:`COARSE_RAYS` rays (then, if it is not there, within
+:data:`WIDE` times as far), fits its motion, and measures the moved ring with the full
+extractor's own measurement (:func:`~bayescal.image.measure.measure_ring`, each profile's
+peak looked for within :data:`SEARCH_PX` of the prediction) on the profiles the full
+extractor reads for that ring (:func:`~bayescal.image.measure.ring_rays`). The noise is
+fitted on every :data:`NOISE_PIXELS` px of evenly spaced rows, and read where the peaks
+are. The first frame, and any frame where the ring is lost, goes through the full
+extractor; a frame it refuses comes back empty, with the error, and the sequence goes on
+(``docs/images.md``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.ndimage import gaussian_filter, gaussian_filter1d, median_filter
+from scipy.ndimage import gaussian_filter, gaussian_filter1d
 
 from .._validation import check_positive
 from ..errors import BayescalError, ExtractionError, InvalidValueError
 from .doubt import blob_mask, check_colour, check_ring, mirror_disc
-from .extract import OFFSET_SD, extract_laser, measure_ring
-from .frames import TrackedPixels, as_frame, iter_frames, per_frame
-from .locate import BLOB_MARGIN
+from .extract import extract_laser
+from .measure import (
+    BLOB_MARGIN,
+    MEASURE_MARGIN,
+    OFFSET_SD,
+    LaserPixels,
+    LaserSignal,
+    measure_ring,
+    ring_azimuths,
+    ring_rays,
+)
 from .noise import noise_model
-from .read import as_gray, demosaiced_blur
-from .ring import R_MIN, circle_fit, ridge_near, ring_model
+from .peak import bilinear
+from .read import as_frame, as_gray, demosaiced_blur, iter_frames, per_frame
+from .ring import circle_fit, ring_model
 
-__all__ = ["LaserTracker", "track_laser", "BAND_PX", "COARSE_RAYS", "REACH",
-           "NOISE_PIXELS", "KEEP_MIN", "FOUND_MIN", "SNR_DROP"]
+__all__ = ["LaserTracker", "TrackedPixels", "track_laser", "BAND_PX", "WIDE",
+           "COARSE_RAYS", "SEARCH_PX", "NOISE_PIXELS", "KEEP_MIN", "FOUND_MIN", "SNR_DROP"]
 
 #: how far (px) the ring is looked for about the previous frame's, along the rays
 BAND_PX = 8
+#: where the ring is not within BAND_PX, it is looked for again WIDE times as far (the real
+#: pipe frames' ring moved 16 px between two of them)
+WIDE = 3
 #: rays of the first look for the moved ring (one per 2 degrees)
 COARSE_RAYS = 180
-#: samples read either side of the moved ring on each final profile: the search for the
-#: peak (3 + 2), the clutter term's reach past it (16) and the running median's half (7)
-REACH = 28
+#: each profile's peak is looked for within SEARCH_PX samples of the ring's predicted radius
+#: (the full extractor's path is its highest ridge sample within 2 px of the located path)
+SEARCH_PX = 2
 #: the noise model is fitted on evenly spaced rows (each with its two neighbours) of about
 #: NOISE_PIXELS px in all (every 16th row of 960x720): its sd within 0.97-1.13 of the whole
 #: image's at the ring's grey levels, 0.76-1.0 at black, over 12 images of three renderers
@@ -62,16 +77,44 @@ class _Lost(BayescalError):
     """The ring could not be followed into this frame (the message says why)."""
 
 
-class _Band:
-    """Profiles about ``center`` read only near the ring: the attributes of a
-    :class:`~bayescal.image.ring.PolarImage` that :func:`measure_ring` reads, NaN (values,
-    base), 0 (high) or False (valid) off the band."""
+@dataclass(frozen=True)
+class TrackedPixels(LaserPixels):
+    """One frame's laser pixels (as :class:`~bayescal.image.measure.LaserPixels`) and how
+    they were found.
 
-    def __init__(self, center, phi, radii, sub):
-        self.center, self.phi, self.radii, self.sub, self.model = center, phi, radii, sub, None
-        shape = (len(phi), len(radii))
-        self.values, self.base = np.full(shape, np.nan), np.full(shape, np.nan)
-        self.high, self.valid = np.zeros(shape), np.zeros(shape, bool)
+    Attributes
+    ----------
+    tracked : bool
+        True: followed from the previous frame's ring; False: the full extractor ran (the
+        first frame, a frame after a refused one, or one where the tracker lost the ring).
+    name : str
+        The frame's name (a file's stem, ``frame 3``).
+    note : str
+        Why the full extractor ran (``first frame``, ``lost: ...``); empty when tracked.
+    error : ExtractionError or None
+        The full extractor's refusal: the frame has no points then (``len == 0``).
+    """
+
+    tracked: bool = False
+    name: str = ""
+    note: str = ""
+    error: ExtractionError | None = None
+
+    @property
+    def refused(self):
+        """bool: the extractor refused the frame (no points; see :attr:`error`)."""
+        return self.error is not None
+
+    @classmethod
+    def of(cls, lp, **kw):
+        """A :class:`LaserPixels` with the tracker's attributes ``kw``."""
+        return cls(**{f.name: getattr(lp, f.name) for f in fields(LaserPixels)}, **kw)
+
+    @classmethod
+    def refusal(cls, error, **kw):
+        """An empty frame that carries the extractor's ``error``."""
+        return cls(pixels=np.zeros((0, 2)), covariance=np.zeros((0, 2, 2)), snr=np.zeros(0),
+                   flagged=np.zeros(0, bool), center=np.full(2, np.nan), error=error, **kw)
 
 
 class LaserTracker:
@@ -86,8 +129,9 @@ class LaserTracker:
 highpass_px, check, offset_sd
         As :func:`~bayescal.image.extract.extract_laser`, for every frame.
     band_px : float, optional
-        How far (px) the ring is looked for about the previous frame's
-        (:data:`BAND_PX`); a ring that moved farther is found by the full extractor.
+        How far (px) the ring is looked for about the previous frame's (:data:`BAND_PX`;
+        then :data:`WIDE` times as far); a ring that moved farther is found by the full
+        extractor.
     """
 
     def __init__(self, *, background=None, center=None, channel=0, n_azimuth=None,
@@ -171,25 +215,24 @@ highpass_px, check, offset_sd
         """The ring followed from the last frame's, measured; raises :class:`_Lost`."""
         o = self.options
         c0, phi0, r0, snr0 = self._state
-        sig, var_img, sat, raw = self._signal(image, gray, bg, c0, r0.max())
-        pts = _coarse(sig, c0, phi0, r0, self.band_px, o["highpass_px"])
-        if o["center"] is not None:
-            c = np.asarray(o["center"], float)
-            cf, Rf, _ = circle_fit(pts)
-            R = float(np.hypot(*(cf - c)) + Rf)
-        else:
-            c, R, _ = circle_fit(pts)
-        if not np.isfinite(R):
+        signal = self._signal(image, gray, bg, c0, r0.max() + WIDE * self.band_px)
+        try:
+            pts = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
+        except _Lost:                   # farther than the band: look again, wider
+            pts = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px, o["highpass_px"])
+        cf, Rf, _ = circle_fit(pts)
+        if not np.isfinite(Rf):
             raise _Lost("no circle through the moved ring")
-        n = int(o["n_azimuth"]) if o["n_azimuth"] else int(np.clip(np.pi * R, 360, 3600))
-        pol, k, on_blob = _band(sig, c, n, pts, o["highpass_px"], sat, raw,
-                                margin=1 if sig is not raw else BLOB_MARGIN)
-        integer = np.issubdtype(np.asarray(image).dtype, np.integer)
-        top = float(np.iinfo(np.asarray(image).dtype).max) if integer and bg is None else None
-        lp, _ = measure_ring(sig, var_img, pol, k, on_blob, min_snr=o["min_snr"],
-                             gate_px=o["gate_px"], along_sd=o["along_sd"],
-                             var_floor=o["var_floor"], flank=bg is not None, top=top,
-                             offset_sd=o["offset_sd"])
+        c, n = ring_rays(cf, Rf, center=o["center"], n_azimuth=o["n_azimuth"])
+        phi = ring_azimuths(n)
+        d = pts - c
+        a = np.arctan2(d[:, 1], d[:, 0])
+        order = np.argsort(a)
+        radii = np.interp(phi, a[order], np.hypot(*d.T)[order], period=2 * np.pi)
+        lp = measure_ring(signal, c, radii, search_px=SEARCH_PX, min_snr=o["min_snr"],
+                          gate_px=o["gate_px"], along_sd=o["along_sd"],
+                          var_floor=o["var_floor"], highpass_px=o["highpass_px"],
+                          offset_sd=o["offset_sd"])
         self._judge(lp, image, bg, snr0)
         self._remember(lp)
         return lp
@@ -206,28 +249,33 @@ highpass_px, check, offset_sd
         if not self.options["check"]:
             return
         cc, RR, _ = circle_fit(lp.pixels[ok])
+        hinted = self.options["center"] is not None or self.options["radius"] is not None
         try:
-            check_ring(lp.flagged, cc, RR, mirror=self._mirror, expected=self.options["radius"],
-                       closure=0, gains=(np.nan, np.nan))
+            check_ring(lp.flagged, cc, RR, mirror=None if hinted else self._mirror,
+                       expected=self.options["radius"], closure=0, hinted=hinted)
             check_colour(image, as_frame(bg), self.options["channel"], lp.pixels[ok], lp.center)
         except ExtractionError as exc:
             raise _Lost(exc.reason) from None
 
-    def _signal(self, image, gray, bg, c0, r_max):
-        """The signal (smoothed like the full extractor's where it is read), its noise
-        variance (zero far from the ring), the saturated pixels and the raw channel."""
+    def _signal(self, image, gray, bg, c0, reach):
+        """The laser's signal (:class:`~bayescal.image.measure.LaserSignal`) as the full
+        extractor's, smoothed (a demosaiced channel) only within ``reach`` + the measurement's
+        margin of ``c0``; its noise variance and saturated blobs computed where they are read,
+        the noise model fitted on a sample of rows."""
         H, W = gray.shape
-        reach = r_max + self.band_px + REACH + 8
+        reach = reach + MEASURE_MARGIN + 8
         box = (slice(max(0, int(c0[1] - reach)), min(H, int(c0[1] + reach) + 1)),
                slice(max(0, int(c0[0] - reach)), min(W, int(c0[0] + reach) + 1)))
+        integer = np.issubdtype(np.asarray(image).dtype, np.integer)
         top = _top(image, gray)
-        sat = _Saturated([(gray, top)])
         on = _smoothed(gray, self._blur, box)
         step = max(2, int(round(H * W / NOISE_PIXELS)))
         rows = np.arange(step // 2 + 4, H - 4, step)
         if bg is None:
             model = noise_model(_strips(gray, rows, self._blur), rows=_mid(rows))
-            return on, _Variance(model, on), sat, gray
+            sat = _Saturated([(gray, top)])
+            return LaserSignal(on, _Variance(model, on), gray, sat,
+                               _Blobs(sat, gray, BLOB_MARGIN), top if integer else None, False)
         bg = as_frame(bg)
         bgg = as_gray(bg, channel=self.options["channel"], name="background")
         if bgg.shape != gray.shape:
@@ -236,23 +284,20 @@ highpass_px, check, offset_sd
         off = _smoothed(bgg, self._blur, box)
         s_on, s_off = _strips(gray, rows, self._blur), _strips(bgg, rows, self._blur)
         model = noise_model(s_on - s_off, levels=0.5 * (s_on + s_off), rows=_mid(rows))
-        sat.images.append((bgg, _top(bg, bgg)))
-        return on - off, _Variance(model, 0.5 * (on + off)), sat, gray
+        sat = _Saturated([(gray, top), (bgg, _top(bg, bgg))])
+        return LaserSignal(on - off, _Variance(model, 0.5 * (on + off)), gray, sat,
+                           _Blobs(sat, gray, 1), top if integer else None, True)
 
 
 class _Variance:
     """The noise variance of each pixel, ``model(level)``, computed where it is read: an
-    array's indexing and shape (the peak fits read a few pixels about the ring); as an
-    array, all of it."""
+    array's indexing and shape (the peak fits read a few pixels about the ring)."""
 
     def __init__(self, model, level):
         self.model, self.level, self.shape = model, level, level.shape
 
     def __getitem__(self, key):
         return self.model(self.level[key])
-
-    def __array__(self, dtype=None, copy=None):
-        return np.asarray(self.model(self.level), dtype=dtype)
 
 
 class _Saturated:
@@ -264,6 +309,43 @@ class _Saturated:
 
     def __getitem__(self, key):
         return np.logical_or.reduce([img[key] >= top for img, top in self.images])
+
+
+class _Blobs:
+    """The saturated blobs (:func:`~bayescal.image.doubt.blob_mask` of the full extractor's
+    signal), computed about the pixels where they are read: an array's indexing by two
+    integer index arrays ``(rows, columns)``."""
+
+    def __init__(self, sat, raw, margin):
+        self.sat, self.raw, self.margin, self.shape = sat, raw, margin, raw.shape
+
+    def __getitem__(self, key):
+        vi, ui = key
+        hit = self.sat[vi, ui]
+        if not _has_core(self.sat, vi[hit], ui[hit]):
+            return np.zeros(np.shape(vi), bool)
+        pad = 40
+        H, W = self.shape
+        box = (slice(max(0, vi.min() - pad), min(H, vi.max() + pad + 1)),
+               slice(max(0, ui.min() - pad), min(W, ui.max() + pad + 1)))
+        mask = blob_mask(np.where(self.sat[box], np.inf, self.raw[box]), top=np.inf,
+                         margin=self.margin)
+        return mask[vi - box[0].start, ui - box[1].start]
+
+
+def _has_core(sat, vv, uu, radius=2):
+    """Whether one of the saturated pixels ``(vv, uu)`` has its whole disc of ``radius`` px
+    saturated (a blob's core, which :func:`~bayescal.image.doubt.blob_mask` erodes to find;
+    a thin clipped stripe has none). A core farther from the profiles than the mask grows it
+    cannot reach a peak sample, which lies :data:`~bayescal.image.measure.MEASURE_MARGIN`
+    samples inside them."""
+    if len(vv) == 0:
+        return False
+    H, W = sat.shape
+    dv, du = np.nonzero(np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius)
+    rr = np.clip(vv[:, None] + dv[None] - radius, 0, H - 1)
+    cc = np.clip(uu[:, None] + du[None] - radius, 0, W - 1)
+    return bool(np.any(np.all(sat[rr, cc], axis=1)))
 
 
 def _top(image, gray):
@@ -301,43 +383,21 @@ def _mid(rows):
     return np.arange(1, 3 * len(rows), 3)
 
 
-def _bilinear(img, u, v):
-    """Bilinear samples of ``img`` at ``(u, v)``, the image's edge repeated beyond it (as
-    ``map_coordinates(order=1, mode="nearest")``)."""
-    H, W = img.shape
-    u = np.clip(u, 0, W - 1)
-    v = np.clip(v, 0, H - 1)
-    u0 = np.minimum(u.astype(int), W - 2)
-    v0 = np.minimum(v.astype(int), H - 2)
-    fu, fv = u - u0, v - v0
-    flat = img.ravel()
-    i = v0 * W + u0
-    top = flat[i] * (1 - fu) + flat[i + 1] * fu
-    bot = flat[i + W] * (1 - fu) + flat[i + W + 1] * fu
-    return top * (1 - fv) + bot * fv
-
-
-def _running_median(values, half):
-    """The running median of ``2 half + 1`` samples along each row, where the window fits:
-    shape (n, L - 2 half)."""
-    win = sliding_window_view(values, 2 * half + 1, axis=1)
-    return np.partition(win, half, axis=-1)[..., half]
-
-
 def _coarse(sig, c0, phi0, r0, band, highpass_px):
     """The ring moved from the last frame's (``r0`` at ``phi0`` about ``c0``): points
     (COARSE_RAYS, 2) px where each ray finds it, or its fitted motion where a ray does not;
     raises :class:`_Lost` when too few rays find it near that motion, or it moved out of
     the band."""
     m = COARSE_RAYS
-    phi = np.linspace(-np.pi, np.pi, m, endpoint=False) + np.pi / m
+    phi = ring_azimuths(m)
     rp = np.interp(phi, phi0, r0, period=2 * np.pi)
     h = max(5, int(highpass_px) | 1) // 2
     lo = np.rint(rp).astype(int) - band - h
     rad = lo[:, None] + np.arange(2 * (band + h) + 1)[None]
     e = np.stack([np.cos(phi), np.sin(phi)], -1)
-    vals = _bilinear(sig, c0[0] + e[:, :1] * rad, c0[1] + e[:, 1:] * rad)
-    high = vals[:, h:-h] - _running_median(vals, h)
+    vals = bilinear(sig, c0[0] + e[:, :1] * rad, c0[1] + e[:, 1:] * rad)[0]
+    win = sliding_window_view(vals, 2 * h + 1, axis=1)
+    high = vals[:, h:-h] - np.partition(win, h, axis=-1)[..., h]      # the running median's
     sm = gaussian_filter1d(high, 1.0, axis=1, mode="nearest")
     j = np.clip(np.argmax(sm, axis=1), 1, sm.shape[1] - 2)
     # the noise of the high-pass, robustly over blocks of 6 rays, the ridge (the samples
@@ -366,102 +426,6 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
     return c0 + rr[:, None] * e
 
 
-def _band(sig, c, n, pts, highpass_px, sat, raw, *, margin):
-    """The profiles about ``c`` (n azimuths, the full extractor's grid) in a band of
-    :data:`REACH` samples about the ring through ``pts``; the peak sample per profile (the
-    highest high-passed sample within 2 of the ridge nearest the ring, or of the ring's
-    robust model where the two part by 2 px, as the full extractor's path); the blob mask."""
-    phi = np.linspace(-np.pi, np.pi, n, endpoint=False) + np.pi / n
-    d = pts - c
-    a = np.arctan2(d[:, 1], d[:, 0])
-    order = np.argsort(a)
-    rp = np.interp(phi, a[order], np.hypot(*d.T)[order], period=2 * np.pi)
-    h = max(5, int(highpass_px) | 1) // 2
-    lo = np.maximum(np.rint(rp).astype(int) - REACH, int(R_MIN))
-    L = 2 * REACH + 1
-    rad = lo[:, None] + np.arange(L)[None]
-    sub = (np.arange(2) - 0.5) * (2 * np.pi / n) / 2
-    vals = 0.0
-    H, W = sig.shape
-    for s in sub:
-        u = c[0] + np.cos(phi + s)[:, None] * rad
-        v = c[1] + np.sin(phi + s)[:, None] * rad
-        vals = vals + _bilinear(sig, u, v) / len(sub)
-    valid = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-    base = _running_median(vals, h)
-    high = np.where(valid[:, h:-h], vals[:, h:-h] - base, 0.0)
-    # the ring's path: the ridge within 3 of the prediction, blobs not counted
-    uc = c[0] + np.cos(phi)[:, None] * rad
-    vc = c[1] + np.sin(phi)[:, None] * rad
-    blobs = _blobs(sat, raw, uc, vc, margin)
-    sm = np.where(blobs[:, h:-h], 0.0, gaussian_filter1d(high, 1.0, axis=1))
-    mid = REACH - h
-    path = mid - 3 + np.argmax(sm[:, mid - 3:mid + 4], axis=1)
-    i = np.arange(n)
-    scale = median_filter(1.4826 * np.median(np.abs(sm), axis=1), size=9, mode="wrap")
-    z = sm[i, path] / np.maximum(scale, 1e-9)
-    k0 = int(lo.min())
-    pol = _Band(np.asarray(c, float), phi, np.arange(k0, lo.max() + L, dtype=float), sub)
-    cols = lo[:, None] - k0 + np.arange(L)[None]
-    rows = i[:, None]
-    flat = (rows * len(pol.radii) + cols).ravel()
-    core = (rows * len(pol.radii) + cols[:, h:-h]).ravel()
-    pol.values.ravel()[flat] = vals.ravel()
-    pol.valid.ravel()[flat] = valid.ravel()
-    pol.base.ravel()[core] = base.ravel()
-    pol.high.ravel()[core] = high.ravel()
-    on_blob = np.zeros(pol.values.shape, bool)
-    on_blob.ravel()[flat] = blobs.ravel()
-    path = lo - k0 + h + path
-    k = ridge_near(pol, path, 2)
-    model = _model(phi, pol.radii[path], z > 3)
-    stray = np.abs(pol.radii[k] - model) > 2.0
-    if np.any(stray):
-        near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
-        k = np.where(stray, near, k)
-    pol.model = model
-    return pol, k, on_blob
-
-
-def _model(phi, r, strong, *, points=120):
-    """The full extractor's robust Fourier model of the ring's path
-    (:func:`~bayescal.image.ring.ring_model`, order 6), fitted to about ``points`` evenly
-    spaced profiles and interpolated between them (it is smooth over 3 degrees; the gates
-    that read it allow 2-3 px)."""
-    sel = slice(None, None, max(1, len(phi) // points))
-    model, _ = ring_model(phi[sel], r[sel], strong[sel].astype(float))
-    return np.interp(phi, phi[sel], model, period=2 * np.pi)
-
-
-def _blobs(sat, raw, u, v, margin):
-    """Whether each sample ``(u, v)`` lies on a saturated blob (a lamp), as the full
-    extractor's mask (:func:`~bayescal.image.doubt.blob_mask`) computed about the band."""
-    H, W = raw.shape
-    ui = np.clip(np.rint(u).astype(int), 0, W - 1)
-    vi = np.clip(np.rint(v).astype(int), 0, H - 1)
-    if not _has_core(sat, vi[sat[vi, ui]], ui[sat[vi, ui]]):
-        return np.zeros(u.shape, bool)
-    pad = 40
-    box = (slice(max(0, vi.min() - pad), min(H, vi.max() + pad + 1)),
-           slice(max(0, ui.min() - pad), min(W, ui.max() + pad + 1)))
-    mask = blob_mask(np.where(sat[box], np.inf, raw[box]), top=np.inf, margin=margin)
-    return mask[vi - box[0].start, ui - box[1].start]
-
-
-def _has_core(sat, vv, uu, radius=2):
-    """Whether one of the saturated pixels ``(vv, uu)`` has its whole disc of ``radius`` px
-    saturated (a blob's core, which :func:`~bayescal.image.doubt.blob_mask` erodes to find;
-    a thin clipped stripe has none). A core farther from the band than the mask grows it
-    cannot reach a peak sample, which lies 23 samples or more inside the band."""
-    if len(vv) == 0:
-        return False
-    H, W = sat.shape
-    dv, du = np.nonzero(np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius)
-    rr = np.clip(vv[:, None] + dv[None] - radius, 0, H - 1)
-    cc = np.clip(uu[:, None] + du[None] - radius, 0, W - 1)
-    return bool(np.any(np.all(sat[rr, cc], axis=1)))
-
-
 def track_laser(frames, *, background=None, **options):
     """The laser pixels of every frame of a sequence, each frame's search seeded by the
     previous frame's ring.
@@ -471,7 +435,7 @@ def track_laser(frames, *, background=None, **options):
     frames : str, os.PathLike or iterable
         A folder of images (in the order of their names), a video file (needs PyAV:
         ``pip install bayescal[video]``), or an iterable of images (arrays or paths);
-        see :func:`~bayescal.image.frames.iter_frames`.
+        see :func:`~bayescal.image.read.iter_frames`.
     background : ndarray, path or sequence of them, optional
         The laser-off image of every frame, or one per frame.
     **options
@@ -497,3 +461,4 @@ def track_laser(frames, *, background=None, **options):
     bgs = per_frame(background)
     return [tracker(img, background=as_frame(next(bgs)), name=name)
             for name, img in iter_frames(frames, channel=tracker.options["channel"])]
+

@@ -229,7 +229,9 @@ def test_r2_no_ring_with_laser_off_image_is_an_error():
 @pytest.mark.xfail(strict=True, reason="without a laser-off image a bright rail around the "
                    "walls is a thin closed ridge like a laser ring (docs/images.md)")
 def test_r2_no_ring_without_laser_off_image_is_an_error():
-    img, _, _ = render2(P, range_mm=2500, laser=False, rng=3)
+    # rng=3's rail is refused since the path's median SNR is judged (9.5 noise sds, under
+    # 12); rng=0's scores 14.8 and is still returned, as are 4 of seeds 0-5
+    img, _, _ = render2(P, range_mm=2500, laser=False, rng=0)
     with pytest.raises(bc.ExtractionError):
         bc.extract_laser(img)
 

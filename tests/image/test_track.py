@@ -3,10 +3,10 @@ frame by frame, on a rendered moving sensor; a lost ring and a refused frame."""
 
 import numpy as np
 import pytest
+from score import agreement
 
 import bayescal as bc
 from bayescal.errors import ExtractionError, InvalidTypeError, InvalidValueError, MissingFileError
-from bayescal.image.frames import agreement
 
 #: a 400x300 camera (the paper's sensor scaled: ring radius ~100 px, 360 profiles)
 SHAPE = (300, 400)
@@ -97,7 +97,7 @@ def test_frames_from_a_video(frames, tmp_path):
                 out.mux(packet)
         for packet in stream.encode():
             out.mux(packet)
-    from bayescal.image.frames import count_frames, iter_frames
+    from bayescal.image.read import count_frames, iter_frames
 
     got = [img for _, img in iter_frames(path)]
     assert len(got) == 3 and count_frames(path) in (3, None)
