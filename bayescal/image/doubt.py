@@ -269,11 +269,12 @@ COLOUR_CORE = 4
 COLOUR_FLANK = (6, 7, 8)
 
 
-def _ridge_heights(grays, center, pixels):
+def _ridge_heights(image, background, channels, center, pixels):
     """Light (grey levels per px) of a ridge at each of ``pixels`` (N, 2) over the lower of
     its two flanks along the ray from ``center`` (:data:`COLOUR_CORE`,
-    :data:`COLOUR_FLANK`), and the value at the pixel: a pair of (N,) arrays for each image
-    of ``grays`` (the same samples read in each)."""
+    :data:`COLOUR_FLANK`), and the value at the pixel: a pair of (N,) arrays for each of
+    ``channels`` of ``image`` (H, W, C) (minus ``background``'s, (H, W, C) or (H, W), when
+    given), from one read of the samples' pixels."""
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
@@ -281,11 +282,15 @@ def _ridge_heights(grays, center, pixels):
     core = np.arange(-COLOUR_CORE, COLOUR_CORE + 1, dtype=float)
     offs = np.concatenate([-fl, fl, core])                        # all samples at once
     q = center + e[:, None, :] * (r[:, None] + offs[None, :])[..., None]
-    _, idx, wts = bilinear(grays[0], q[..., 0], q[..., 1])
+    _, idx, wts = bilinear(image[..., channels[0]], q[..., 0], q[..., 1])
+    px = image[idx[..., 0], idx[..., 1]]                          # (N, S, 4, C)
+    bg = None if background is None else background[idx[..., 0], idx[..., 1]]
     m = len(fl)
     out = []
-    for gray in grays:
-        v = np.sum(gray[idx[..., 0], idx[..., 1]] * wts, axis=-1)   # (N, S), as bilinear's
+    for k in channels:
+        at = px[..., k] if bg is None else \
+            px[..., k].astype(float) - (bg[..., k] if bg.ndim == 4 else bg).astype(float)
+        v = np.sum(at * wts, axis=-1)                             # (N, S), as bilinear's
         low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
         out.append((v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]))
     return out
@@ -299,21 +304,11 @@ def _grey(arr, channel):
     integer = np.issubdtype(arr.dtype, np.integer)
     top = float(np.iinfo(arr.dtype).max) if integer else float(arr.max())
     tol = 2.0 * max(top, 1e-12) / 255.0
-    mine = arr[..., channel].astype(np.int64 if arr.dtype.itemsize > 2 else np.int32) \
-        if integer else arr[..., channel].astype(float)
-    return all(np.mean(np.abs(arr[..., k] - mine) <= tol) >= 0.99
+    wide = {1: np.int16, 2: np.int32}.get(arr.dtype.itemsize, np.int64) if integer else float
+    mine = arr[..., channel].astype(wide)
+    size = mine.size
+    return all(np.count_nonzero(np.abs(arr[..., k] - mine) <= tol) / size >= 0.99
                for k in range(3) if k != channel)
-
-
-class _Difference:
-    """``a - b`` (two images, as floats), computed at the pixels where it is read (an
-    array's indexing and shape): a laser-off image subtracted without a copy of either."""
-
-    def __init__(self, a, b):
-        self.a, self.b, self.shape = a, b, a.shape
-
-    def __getitem__(self, key):
-        return self.a[key].astype(float) - self.b[key].astype(float)
 
 
 def colour_heights(image, background, channel, pixels, center, *, min_points=12):
@@ -346,15 +341,13 @@ def colour_heights(image, background, channel, pixels, center, *, min_points=12)
     if arr.ndim != 3 or arr.shape[2] < 3 or len(pixels) < min_points or _grey(arr, channel):
         return None
     c = np.asarray(center, dtype=float)
-    if background is None:
-        chan = [arr[..., k] for k in range(3)]
-    else:                               # a grey laser-off image is taken for every channel
-        bg = np.asarray(background)
-        chan = [_Difference(arr[..., k], bg[..., k] if bg.ndim == 3 else bg) for k in range(3)]
     order = [channel] + [k for k in range(3) if k != channel]
-    heights = _ridge_heights([chan[k] for k in order] + [arr[..., channel]], c, pixels)
+    heights = _ridge_heights(arr, None if background is None else np.asarray(background),
+                             order, c, pixels)
     if np.issubdtype(arr.dtype, np.integer):    # where the laser's channel clips, its height
-        keep = heights[-1][1] < np.iinfo(arr.dtype).max - 0.5   # is unknown
+        raw = heights[0] if background is None else \
+            _ridge_heights(arr, None, [channel], c, pixels)[0]      # is unknown
+        keep = raw[1] < np.iinfo(arr.dtype).max - 0.5
         if np.count_nonzero(keep) < min_points:
             return None
         heights = [(h[keep], v[keep]) for h, v in heights]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .doubt import dark_core, mirror_disc
-from .measure import ring_azimuths, ring_rays
+from .measure import ring_azimuths
 from .ring import (
     PATH_CAP,
     QUANTUM_SD,
@@ -24,6 +24,7 @@ from .ring import (
     ring_model,
     ring_path,
     ring_priors,
+    ring_rays,
 )
 
 __all__ = ["RingCandidate", "ring_candidates", "PRIOR_TOL", "PRIOR_SLOPE"]
@@ -119,12 +120,19 @@ def _peaks(pol, path, score):
     best = ridge_near(pol, track, 2)
     # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
     # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
+    # (the model through those peaks, not the path: on a bright stripe the path may run on
+    # its flank, 2 px inside the crest, over a sector, and a model 3 px off the ring flags
+    # its points there "off model": real frames' rings, 25-45 points)
     z = score[np.arange(n), path]
-    model, _ = ring_model(pol.phi, pol.radii[track], (z > 3).astype(float))
+    model, _ = ring_model(pol.phi, pol.radii[best], (z > 3).astype(float))
     stray = np.abs(pol.radii[best] - model) > 2.0
     if np.any(stray):
         near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
-        best = np.where(stray, near, best)
+        # not where the sample near the model is the flank of the path's own peak: the ring
+        # strays 2 px from its Fourier model there (real frames' rings over 20-30 azimuths;
+        # a room's corner), and the fit on that flank is 0.5 px off its crest
+        flank = ridge_crest(pol, near, reach=4) == best
+        best = np.where(stray & ~flank, near, best)
     return best, model
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bilinear", "fit_peaks", "flank_baseline"]
+__all__ = ["bilinear", "fit_peaks", "flank_baseline", "path_peaks"]
 
 _OFFS = np.arange(-2, 3)
 
@@ -129,3 +129,61 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     height = vals[:, j] - base[:, j]
     snr = height / sd_s[:, j]
     return r_pk + mu, var, height, snr, chi2, np.sqrt(-0.5 / c), dmu_ds
+
+
+def path_peaks(sig, var_img, pol, k, flank, narrow=None, clip=None, fits=None):
+    """The peaks of profiles ``pol`` (a :class:`~bayescal.image.ring.PolarImage`) at samples
+    ``k`` (n,), as :func:`fit_peaks` returns them (``r``, ``var``, ``height``, ``snr``,
+    ``chi2``, ``width``), of signal ``sig`` and its noise variance ``var_img``, the
+    baseline from the flanks (``flank``: a laser-off difference) or the profiles' running
+    median: a Gaussian through 5 samples, or through the 3 middle
+    ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window);
+    where the peak is clipped (``clip`` (n, K): the samples at the sensor's saturation), the
+    middle of the clipped run (:func:`_plateau`). ``fits`` (a dict) keeps the 5-sample fits
+    for the next pass, which refits only the profiles whose peak sample moved (each
+    profile's fit is its own: the same numbers)."""
+    i = np.arange(len(pol.phi))
+    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
+        pol.base[i[:, None], k[:, None] + np.arange(-2, 3)[None]]
+    redo = np.nonzero(k != fits["k"])[0] if fits else i
+    out = [a.copy() for a in fits["out"]] if fits else [None] * 6
+    if len(redo):
+        new = fit_peaks(sig, var_img, pol.center, pol.phi[redo], pol.radii[k[redo]], base[redo],
+                        sub=pol.sub)[:6]
+        out = list(new) if not fits else out
+        for a, b in zip(out, new, strict=True):
+            a[redo] = b
+    if fits is not None:
+        fits.update(k=k.copy(), out=[a.copy() for a in out])
+    if narrow is not None and narrow.any():
+        j = np.nonzero(narrow)[0]
+        sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
+                        sub=pol.sub)[:6]
+        for a, b in zip(out, sub, strict=True):
+            a[j] = b
+    if clip is not None:
+        _plateau(pol, k, clip, out)
+    return out
+
+
+def _plateau(pol, k, clipped, out):
+    """Peaks clipped at the sensor's saturation (``clipped`` (n, K): the samples there): a
+    Gaussian through a flat top is no estimate (1-1.5 px off on a third renderer's clipped
+    stripes); the middle of the run of clipped samples is, to the quantisation of its two
+    ends (variance 1/24 px^2). Updates ``out`` (r, var, height, snr, chi2, width) in
+    place."""
+    n, K = clipped.shape
+    i = np.arange(n)
+    on = clipped[i, k]
+    if not on.any():
+        return
+    j = np.arange(1, 16)
+    left = clipped[i[:, None], np.clip(k[:, None] - j[None], 0, K - 1)]
+    right = clipped[i[:, None], np.clip(k[:, None] + j[None], 0, K - 1)]
+    a = np.argmin(np.column_stack([left, np.zeros(n, bool)]), axis=1)      # run lengths
+    b = np.argmin(np.column_stack([right, np.zeros(n, bool)]), axis=1)
+    on &= (a + b >= 1) & (a < 15) & (b < 15)
+    r, var, _, _, chi2, _ = out
+    r[on] = pol.radii[k[on]] + 0.5 * (b[on] - a[on])
+    var[on] = 1.0 / 24.0
+    chi2[on] = np.nan
