@@ -30,16 +30,17 @@ from .measure import (
     BLOB_MARGIN,
     MEASURE_MARGIN,
     OFFSET_SD,
+    SEARCH_PX,
     LaserPixels,
     LaserSignal,
     measure_ring,
+    measure_settled,
     ring_azimuths,
-    ring_rays,
 )
 from .noise import noise_model
 from .peak import bilinear
 from .read import as_frame, as_gray, demosaiced_blur, iter_frames, per_frame
-from .ring import circle_fit, ring_model
+from .ring import circle_fit, ring_circle, ring_model, ring_rays
 
 __all__ = ["LaserTracker", "TrackedPixels", "track_laser", "BAND_PX", "WIDE",
            "COARSE_RAYS", "SEARCH_PX", "NOISE_PIXELS", "KEEP_MIN", "FOUND_MIN", "SNR_DROP"]
@@ -48,12 +49,9 @@ __all__ = ["LaserTracker", "TrackedPixels", "track_laser", "BAND_PX", "WIDE",
 BAND_PX = 8
 #: where the ring is not within BAND_PX, it is looked for again WIDE times as far (the real
 #: pipe frames' ring moved 16 px between two of them)
-WIDE = 3
+WIDE = 4
 #: rays of the first look for the moved ring (one per 2 degrees)
 COARSE_RAYS = 180
-#: each profile's peak is looked for within SEARCH_PX samples of the ring's predicted radius
-#: (the full extractor's path is its highest ridge sample within 2 px of the located path)
-SEARCH_PX = 2
 #: the noise model is fitted on evenly spaced rows (each with its two neighbours) of about
 #: NOISE_PIXELS px in all (every 16th row of 960x720): its sd within 0.97-1.13 of the whole
 #: image's at the ring's grey levels, 0.76-1.0 at black, over 12 images of three renderers
@@ -220,7 +218,7 @@ highpass_px, check, offset_sd
             pts = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
         except _Lost:                   # farther than the band: look again, wider
             pts = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px, o["highpass_px"])
-        cf, Rf, _ = circle_fit(pts)
+        cf, Rf = ring_circle(pts, np.zeros(len(pts), bool))
         if not np.isfinite(Rf):
             raise _Lost("no circle through the moved ring")
         c, n = ring_rays(cf, Rf, center=o["center"], n_azimuth=o["n_azimuth"])
@@ -229,10 +227,11 @@ highpass_px, check, offset_sd
         a = np.arctan2(d[:, 1], d[:, 0])
         order = np.argsort(a)
         radii = np.interp(phi, a[order], np.hypot(*d.T)[order], period=2 * np.pi)
-        lp = measure_ring(signal, c, radii, search_px=SEARCH_PX, min_snr=o["min_snr"],
-                          gate_px=o["gate_px"], along_sd=o["along_sd"],
-                          var_floor=o["var_floor"], highpass_px=o["highpass_px"],
-                          offset_sd=o["offset_sd"])
+        kw = {k: o[k] for k in ("min_snr", "gate_px", "along_sd", "var_floor", "highpass_px",
+                                "offset_sd")}
+        lp = measure_ring(signal, c, radii, search_px=SEARCH_PX, **kw)
+        # its own circle's profiles (those the full extractor reads), if they are others
+        lp = measure_settled(signal, lp, center=o["center"], n_azimuth=o["n_azimuth"], **kw)
         self._judge(lp, image, bg, snr0)
         self._remember(lp)
         return lp
@@ -403,8 +402,8 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
     # the noise of the high-pass, robustly over blocks of 6 rays, the ridge (the samples
     # within 3 of each ray's highest) left out: in a band of 17 samples it is a third of them
     quiet = np.abs(np.arange(sm.shape[1])[None] - j[:, None]) > 3
-    scale = 1.4826 * np.nanmedian(np.where(quiet, np.abs(sm), np.nan).reshape(m // 6, -1),
-                                  axis=1).repeat(6)
+    scale = 1.4826 * _nanmedian_rows(np.where(quiet, np.abs(sm), np.nan).reshape(m // 6, -1))
+    scale = scale.repeat(6)
     i = np.arange(m)
     z = sm[i, j] / np.maximum(scale, 1e-9)
     a, b, c = sm[i, j - 1], sm[i, j], sm[i, j + 1]
@@ -414,7 +413,7 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
     strong = z > Z_MIN
     if strong.sum() < 12:
         raise _Lost(f"the ring was not found within {band} px of the last one")
-    motion, _ = ring_model(phi, d, strong.astype(float), order=3)
+    motion, _ = ring_model(phi, d, strong.astype(float), order=3, iters=4)
     found = strong & (np.abs(d - motion) <= 1.5)
     if found.mean() < FOUND_MIN:
         raise _Lost(f"the ring was found within {band} px of the last one on "
@@ -424,6 +423,15 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
                     f"follows {band - 2} px)")
     rr = rp + np.where(found, d, motion)
     return c0 + rr[:, None] * e
+
+
+def _nanmedian_rows(x):
+    """``np.nanmedian(x, axis=1)`` of a 2-D array (by one sort: NaN sorts last)."""
+    s = np.sort(x, axis=1)
+    c = np.count_nonzero(np.isfinite(x), axis=1)
+    i = np.arange(len(x))
+    return np.where(c > 0, 0.5 * (s[i, np.maximum((c - 1) // 2, 0)] + s[i, np.maximum(c // 2, 0)]),
+                    np.nan)
 
 
 def track_laser(frames, *, background=None, **options):
