@@ -17,7 +17,7 @@ from scipy.ndimage import (
 )
 
 from ..errors import ExtractionError
-from .peak import bilinear
+from .peak import bilinear, corner_sum
 from .ring import circle_fit
 
 __all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
@@ -290,7 +290,7 @@ def _ridge_heights(image, background, channels, center, pixels):
     for k in channels:
         at = px[..., k] if bg is None else \
             px[..., k].astype(float) - (bg[..., k] if bg.ndim == 4 else bg).astype(float)
-        v = np.sum(at * wts, axis=-1)                             # (N, S), as bilinear's
+        v = corner_sum(at * wts)                                  # (N, S), as bilinear's
         low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
         out.append((v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]))
     return out

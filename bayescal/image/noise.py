@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import uniform_filter
 
-from .ring import local_quadratic
+from .ring import circular_windows, local_quadratic
 
 __all__ = ["noise_model", "ring_scatter_scale", "clutter_variance", "scatter_factor", "CLUTTER_K"]
 
@@ -120,10 +120,9 @@ def ring_scatter_scale(r, var, ok, *, shared_px=3.5):
     spacing = max(float(np.median(r[ok])) if ok.any() else 1.0, 1e-3) * 2 * np.pi / n
     gap = max(2, int(np.ceil(shared_px / spacing)))
     offs = np.arange(-5 * gap, 5 * gap + 1)
-    idx = (np.arange(n)[:, None] + offs[None]) % n
     X = np.stack([np.ones(len(offs)), offs, offs ** 2], axis=1).astype(float)
-    w = (ok[idx] & (np.abs(offs) > gap)[None]).astype(float)
-    coef, A = local_quadratic(w, X, np.where(ok, r, 0.0)[idx])
+    w = (circular_windows(ok, 5 * gap) & (np.abs(offs) > gap)[None]).astype(float)
+    coef, A = local_quadratic(w, X, circular_windows(np.where(ok, r, 0.0), 5 * gap))
     miss = r - coef[:, 0]
     good = ok & (np.sum(w, axis=1) >= 6) & (np.abs(miss) < 3.0)
     if good.sum() < 10:
@@ -179,9 +178,8 @@ def scatter_factor(d, var, win):
     with np.errstate(all="ignore"):
         q = np.where(np.abs(d) < 3.0, d ** 2 / var, np.nan)
     n, h = len(q), win // 2
-    idx = (np.arange(n)[:, None] + np.arange(-h, h + 1)[None]) % n
     # each window's median of its finite values (np.nanmedian's, 4x faster): sorted, NaN last
-    s = np.sort(q[idx], axis=1)
+    s = np.sort(circular_windows(q, h), axis=1)
     c = np.sum(np.isfinite(s), axis=1)
     i = np.arange(n)
     med = (s[i, np.maximum((c - 1) // 2, 0)] + s[i, np.maximum(c // 2, 0)]) / 2

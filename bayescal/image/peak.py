@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bilinear", "fit_peaks", "flank_baseline", "path_peaks"]
+__all__ = ["bilinear", "corner_sum", "fit_peaks", "flank_baseline", "path_peaks"]
 
 _OFFS = np.arange(-2, 3)
 
@@ -18,8 +18,15 @@ def bilinear(img, u, v):
     idx = np.stack([np.stack([v0, u0], -1), np.stack([v0, u0 + 1], -1),
                     np.stack([v0 + 1, u0], -1), np.stack([v0 + 1, u0 + 1], -1)], axis=-2)
     wts = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=-1)
-    vals = np.sum(img[idx[..., 0], idx[..., 1]] * wts, axis=-1)
+    vals = corner_sum(img[idx[..., 0], idx[..., 1]] * wts)
     return vals, idx, wts
+
+
+def corner_sum(g):
+    """``np.sum(g, axis=-1)`` of the 4 corners of bilinear samples (..., 4), in the order
+    the reduction takes them, ``((g0 + g1) + g2) + g3`` (its numbers, checked; 10x faster
+    than a reduction over so short an axis)."""
+    return ((g[..., 0] + g[..., 1]) + g[..., 2]) + g[..., 3]
 
 
 def flank_baseline(values, k, level, *, inner=3, outer=9, q=5.0):
@@ -57,21 +64,22 @@ def flank_baseline(values, k, level, *, inner=3, outer=9, q=5.0):
     return np.asarray(level, float)[:, None] + ((hi - lo) / (inner + outer))[:, None] * _OFFS[None]
 
 
-def _pixel_variance(dmu_ds, idx, wts, var_img):
+def _pixel_variance(dmu_ds, idx, wts, var_px):
     """Variance of a function of bilinear samples, ``sum (d mu / d pixel)^2 var(pixel)``:
-    the coefficients of samples that share a pixel are summed first (they are correlated).
+    the coefficients of samples that share a pixel are summed first (they are correlated);
+    ``var_px``: the variance at the pixels ``idx`` (N, S, 4 m, 2) (the 4 corners of each of
+    the m rays' bilinear samples, (v0, u0) first).
 
     Each pixel's summed coefficient is found in an 8x8 grid about the samples' corner
     (bincount); ``sum_p coef_p^2 var_p`` is then taken as ``sum`` over the (sample, pixel)
     pairs of ``c * coef_p * var_p``, which reads the variance at the pairs' pixels only."""
     n = len(dmu_ds)
-    anchor = idx.reshape(n, -1, 2).min(axis=1)
+    anchor = idx[:, :, 0::4].reshape(n, -1, 2).min(axis=1)      # the samples' (v0, u0)
     loc = np.clip(idx - anchor[:, None, None, :], 0, 7)
     slot = (np.arange(n)[:, None] * 64 + (loc[..., 0] * 8 + loc[..., 1]).reshape(n, -1))
     c = (dmu_ds[..., None] * wts).reshape(n, -1)
     coefs = np.bincount(slot.ravel(), weights=c.ravel(), minlength=n * 64)
-    v = var_img[idx[..., 0], idx[..., 1]].reshape(n, -1)
-    return np.sum(c * coefs[slot] * v, axis=1)
+    return np.sum(c * coefs[slot] * var_px.reshape(n, -1), axis=1)
 
 
 def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
@@ -120,9 +128,10 @@ def fit_peaks(img, var_img, center, phi, r_pk, base, sub=(0.0,)):
     dmu_ds = dmu_dy / s
     # a flat or one-sided profile (c near 0) has a peak clipped to the samples' span and a
     # linearised variance without bound: the span's square bounds it
-    var = np.minimum(_pixel_variance(dmu_ds, idx, wts, var_img), float(len(offs)) ** 2)
+    var_px = var_img[idx[..., 0], idx[..., 1]]
+    var = np.minimum(_pixel_variance(dmu_ds, idx, wts, var_px), float(len(offs)) ** 2)
     resid = (np.log(s) - (X[None] @ coef)[..., 0]) * s
-    sd_s = np.sqrt(np.sum(wts ** 2 * var_img[idx[..., 0], idx[..., 1]], axis=-1))
+    sd_s = np.sqrt(np.sum(wts ** 2 * var_px, axis=-1))
     dof = len(offs) - 3
     chi2 = np.sum((resid / sd_s) ** 2, axis=1) / dof if dof else np.full(len(phi), np.nan)
     j = len(offs) // 2

@@ -18,9 +18,9 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.ndimage import gaussian_filter1d, map_coordinates
 
-__all__ = ["PolarImage", "polar_image", "running_median", "ridge_near", "ridge_crest",
-           "ring_path", "circle_fit", "ring_model", "ring_priors", "ring_curve", "PATH_CAP", "TIE",
-           "QUANTUM_SD", "ring_rays", "ring_circle", "RAY_GRID", "RAY_STEP"]
+__all__ = ["PolarImage", "polar_image", "running_median", "circular_windows", "ridge_near",
+           "ridge_crest", "ring_path", "circle_fit", "ring_model", "ring_priors", "ring_curve",
+           "PATH_CAP", "TIE", "QUANTUM_SD", "ring_rays", "ring_circle", "RAY_GRID", "RAY_STEP"]
 
 #: the largest score an azimuth of a path can gain, noise sds (:func:`ring_path`)
 PATH_CAP = 8.0
@@ -61,8 +61,7 @@ class PolarImage:
         self.sub = (np.arange(sub) - (sub - 1) / 2.0) * (2 * np.pi / len(phi)) / sub
         H, W = img.shape
         self.values = self.sample(img)
-        u = self.center[0] + np.cos(phi + self.sub[-1])[:, None] * radii[None]
-        v = self.center[1] + np.sin(phi + self.sub[-1])[:, None] * radii[None]
+        u, v = self._rays[-1]
         self.valid = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
         self.base = running_median(self.values, max(5, int(highpass_px) | 1))
         self.high = np.where(self.valid, self.values - self.base, 0.0)
@@ -96,12 +95,20 @@ class PolarImage:
         """``image`` (H, W) along the profiles (n, K): bilinear, each sample the mean of the
         profile's rays."""
         out = 0.0
-        for d in self.sub:
-            u = self.center[0] + np.cos(self.phi + d)[:, None] * self.radii[None]
-            v = self.center[1] + np.sin(self.phi + d)[:, None] * self.radii[None]
-            vals = map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="nearest")
+        for u, v in self._rays:
+            vals = map_coordinates(image, [v.ravel(), u.ravel()], order=1, mode="nearest",
+                                   output=float)
             out = out + vals.reshape(u.shape) / len(self.sub)
         return out
+
+    @property
+    def _rays(self):
+        """The samples' coordinates ``(u, v)`` (n, K) px of each ray of the profiles."""
+        if getattr(self, "_uv", None) is None:
+            self._uv = [(self.center[0] + np.cos(self.phi + d)[:, None] * self.radii[None],
+                         self.center[1] + np.sin(self.phi + d)[:, None] * self.radii[None])
+                        for d in self.sub]
+        return self._uv
 
     def sample_mask(self, mask):
         """A boolean image ``mask`` (H, W) at the profiles' samples (n, K), nearest pixel."""
@@ -124,6 +131,17 @@ def running_median(values, width):
         win = sliding_window_view(padded[i:i + step], width, axis=1)
         out[i:i + step] = np.partition(win, h, axis=-1)[..., h]
     return out
+
+
+def circular_windows(a, half):
+    """The windows ``a[(i - half ... i + half) % n]`` of a closed sequence ``a`` (n,), one
+    per row (n, 2 half + 1): ``a[(arange(n)[:, None] + arange(-half, half + 1)) % n]``'s
+    values, as a view of ``a`` wrapped once."""
+    a = np.asarray(a)
+    n = len(a)
+    if half >= n:
+        return a[(np.arange(n)[:, None] + np.arange(-half, half + 1)[None]) % n]
+    return sliding_window_view(np.concatenate([a[n - half:], a, a[:half]]), 2 * half + 1)
 
 
 def _local_sd(x, valid, *, block=(8, 32)):
@@ -432,12 +450,11 @@ def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
     n = len(phi)
     half = max(3, int(round(half_deg / 360.0 * n)))
     off = np.arange(-half, half + 1)
-    idx = (np.arange(n)[:, None] + off[None]) % n
     x = off / half
     X = np.stack([np.ones_like(x), x, x ** 2], -1)               # (m, 3)
     ok = valid & np.isfinite(r)
-    y = np.where(ok, r, 0.0)[idx]
-    tri = (1 - np.abs(x) ** 3)[None] ** 3 * ok[idx]
+    y = circular_windows(np.where(ok, r, 0.0), half)
+    tri = (1 - np.abs(x) ** 3)[None] ** 3 * circular_windows(ok, half)
     w = tri
     coef = np.full((n, 3), np.nan)
     for t in range(iters):
@@ -447,5 +464,5 @@ def ring_curve(phi, r, valid, *, half_deg=30.0, iters=5):
         # the scale shrinks from 1 px over the refits: a fit first pulled by a run off the
         # ring is not locked there by a scale already small
         u = res / (4.685 * max(s, 0.1, 2.0 ** -t))
-        w = tri * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+        w = tri * np.maximum(1 - u ** 2, 0.0) ** 2              # Tukey's biweight
     return np.where(tri.sum(1) > 3, coef[:, 0], np.nan)

@@ -215,10 +215,12 @@ highpass_px, check, offset_sd
         c0, phi0, r0, snr0 = self._state
         signal = self._signal(image, gray, bg, c0, r0.max() + WIDE * self.band_px)
         try:
-            pts = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
+            pts, found = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
         except _Lost:                   # farther than the band: look again, wider
-            pts = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px, o["highpass_px"])
-        cf, Rf = ring_circle(pts, np.zeros(len(pts), bool))
+            pts, found = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px,
+                                 o["highpass_px"])
+        # the rays that found it, as the measured ring's circle keeps its unflagged points
+        cf, Rf = ring_circle(pts, ~found)
         if not np.isfinite(Rf):
             raise _Lost("no circle through the moved ring")
         c, n = ring_rays(cf, Rf, center=o["center"], n_azimuth=o["n_azimuth"])
@@ -384,7 +386,8 @@ def _mid(rows):
 
 def _coarse(sig, c0, phi0, r0, band, highpass_px):
     """The ring moved from the last frame's (``r0`` at ``phi0`` about ``c0``): points
-    (COARSE_RAYS, 2) px where each ray finds it, or its fitted motion where a ray does not;
+    (COARSE_RAYS, 2) px where each ray finds it, or its fitted motion where a ray does not,
+    and which rays found it (COARSE_RAYS,);
     raises :class:`_Lost` when too few rays find it near that motion, or it moved out of
     the band."""
     m = COARSE_RAYS
@@ -422,7 +425,7 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
         raise _Lost(f"the ring moved by up to {np.max(np.abs(motion)):.1f} px (the band "
                     f"follows {band - 2} px)")
     rr = rp + np.where(found, d, motion)
-    return c0 + rr[:, None] * e
+    return c0 + rr[:, None] * e, found
 
 
 def _nanmedian_rows(x):
