@@ -63,7 +63,8 @@ def real_like(image, n, *, rng=None, step_px=1.5, turn_deg=0.3, noise=1.0):
     """``n`` frames of a real frame moved as a sensor at video rate moves its ring: smooth
     shifts of up to ``step_px`` px a frame and turns of up to ``turn_deg`` degrees about the
     image's centre (cubic interpolation), fresh noise of ``noise`` grey levels sd, back to
-    8 bit. The first frame is the image itself, with its noise."""
+    8 bit (the first frame too, unmoved: a dark frame's black is noiseless, and the ring's
+    SNR would drop tenfold at the second)."""
     rng = np.random.default_rng(rng)
     img = np.asarray(image)[..., :3].astype(float)
     H, W = img.shape[:2]
@@ -74,8 +75,8 @@ def real_like(image, n, *, rng=None, step_px=1.5, turn_deg=0.3, noise=1.0):
     th = np.radians(turn_deg) * 30 / (2 * np.pi) * (np.sin(2 * np.pi * t / 30 + ph[2])
                                                      - np.sin(ph[2]))
     mid = np.array([(H - 1) / 2, (W - 1) / 2])
-    out = [np.asarray(image)]
-    for k in range(1, n):
+    out = []
+    for k in range(n):
         rot = np.array([[np.cos(th[k]), -np.sin(th[k])], [np.sin(th[k]), np.cos(th[k])]])
         off = mid - rot @ (mid + np.array([dy[k], dx[k]]))
         moved = np.stack([affine_transform(img[..., ch], rot, offset=off, order=3,
