@@ -207,23 +207,28 @@ highpass_px, check, offset_sd
         phi = np.arctan2(d[:, 1], d[:, 0])
         order = np.argsort(phi)
         self._state = (np.asarray(lp.center, float), phi[order], np.hypot(*d.T)[order],
-                       float(np.median(lp.snr[ok])))
+                       float(np.median(lp.snr[ok])), ring_circle(lp.pixels, ~ok))
 
     def _follow(self, image, gray, bg):
         """The ring followed from the last frame's, measured; raises :class:`_Lost`."""
         o = self.options
-        c0, phi0, r0, snr0 = self._state
+        c0, phi0, r0, snr0, circle = self._state
         signal = self._signal(image, gray, bg, c0, r0.max() + WIDE * self.band_px)
         try:
-            pts, found = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
+            pts, motion = _coarse(signal.signal, c0, phi0, r0, self.band_px, o["highpass_px"])
         except _Lost:                   # farther than the band: look again, wider
-            pts, found = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px,
-                                 o["highpass_px"])
-        # the rays that found it, as the measured ring's circle keeps its unflagged points
-        cf, Rf = ring_circle(pts, ~found)
-        if not np.isfinite(Rf):
-            raise _Lost("no circle through the moved ring")
-        c, n = ring_rays(cf, Rf, center=o["center"], n_azimuth=o["n_azimuth"])
+            pts, motion = _coarse(signal.signal, c0, phi0, r0, WIDE * self.band_px,
+                                  o["highpass_px"])
+        # the last ring's circle moved as the ring did: the motion's mean is its radius's
+        # change, its first harmonic its centre's shift (the moved ring's own circle would
+        # differ from the one its measured points give by the rays' noise, and read other
+        # profiles 4 times as often: 5 of 72 real-like frames measured twice)
+        phi = ring_azimuths(len(motion))
+        shift = 2 * np.mean(motion[:, None] * np.stack([np.cos(phi), np.sin(phi)], -1), 0)
+        if not np.all(np.isfinite(circle[0])) or not np.isfinite(circle[1]):
+            raise _Lost("no circle through the last ring")
+        c, n = ring_rays(circle[0] + shift, circle[1] + np.mean(motion), center=o["center"],
+                         n_azimuth=o["n_azimuth"])
         phi = ring_azimuths(n)
         d = pts - c
         a = np.arctan2(d[:, 1], d[:, 0])
@@ -387,7 +392,7 @@ def _mid(rows):
 def _coarse(sig, c0, phi0, r0, band, highpass_px):
     """The ring moved from the last frame's (``r0`` at ``phi0`` about ``c0``): points
     (COARSE_RAYS, 2) px where each ray finds it, or its fitted motion where a ray does not,
-    and which rays found it (COARSE_RAYS,);
+    and that motion (COARSE_RAYS,) px along the rays (:func:`ring_azimuths`);
     raises :class:`_Lost` when too few rays find it near that motion, or it moved out of
     the band."""
     m = COARSE_RAYS
@@ -425,7 +430,7 @@ def _coarse(sig, c0, phi0, r0, band, highpass_px):
         raise _Lost(f"the ring moved by up to {np.max(np.abs(motion)):.1f} px (the band "
                     f"follows {band - 2} px)")
     rr = rp + np.where(found, d, motion)
-    return c0 + rr[:, None] * e, found
+    return c0 + rr[:, None] * e, motion
 
 
 def _nanmedian_rows(x):
