@@ -11,6 +11,7 @@ See ``docs/`` for the model, conventions and the public API.
 from .checks.compare import ModelComparison, compare_models
 from .checks.fit import NoiseCollapseError, OffPlanWarning
 from .checks.inputs import DuplicateRowsWarning
+from .checks.misfit import ModelMisfitWarning
 from .errors import BayescalError, BayescalWarning, DegenerateInputError, ExtractionError
 from .fit.camera import calibrate_camera
 from .fit.sequential import calibrate_sequential, sequential_residuals
@@ -102,6 +103,7 @@ __all__ = [
     "NotConvergedError",
     "DuplicateRowsWarning",
     "OffPlanWarning",
+    "ModelMisfitWarning",
     "NoiseCollapseError",
     "BayescalError",
     "BayescalWarning",

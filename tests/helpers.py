@@ -4,9 +4,6 @@
 import contextlib
 import io
 import os
-import pathlib
-import subprocess
-import sys
 import types
 import warnings
 
@@ -110,26 +107,20 @@ def write_rendered_boards(folder, poses=REAL_LIKE_POSES, *, camera=REAL_LIKE_CAM
     return paths, truths
 
 
-def run_cli(*args, cwd, env=None, timeout=600):
+def run_cli(*args, cwd, env=None):
     """``bayescal ARGS`` in ``cwd``; returns ``returncode``, ``stdout`` and ``stderr`` like a
     finished subprocess.
 
     Run in this process (``bayescal.cli.main.main``), with the warning filters a fresh
-    interpreter starts with: an interpreter and bayescal's imports per command cost 1-2 s
-    of CPU each, most of the command-line tests' time. With ``env`` (variables the command
-    reads at start-up) it runs as ``python -m bayescal`` in a subprocess instead; the
-    console entry point's own exit path (Ctrl-C, ``os._exit``) is tested by subprocess
-    where it matters."""
-    if env is not None:
-        import bayescal
-
-        root = str(pathlib.Path(bayescal.__file__).resolve().parents[1])
-        full_env = dict(os.environ, MPLBACKEND="agg", PYTHONPATH=root, **env)
-        return subprocess.run([sys.executable, "-m", "bayescal", *map(str, args)], cwd=cwd,
-                              capture_output=True, text=True, env=full_env, timeout=timeout)
+    interpreter starts with and ``env`` (variables the command reads) set for the call: an
+    interpreter and bayescal's imports per command cost 1-2 s of CPU each, most of the
+    command-line tests' time. The console entry point's own exit path (Ctrl-C,
+    ``os._exit``) is tested by subprocess where it matters."""
     from bayescal.cli.main import main
 
     out, err, here = io.StringIO(), io.StringIO(), os.getcwd()
+    saved = {k: os.environ.get(k) for k in (env or {})}
+    os.environ.update(env or {})
     os.chdir(cwd)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
@@ -142,4 +133,9 @@ def run_cli(*args, cwd, env=None, timeout=600):
             code = main([str(a) for a in args])
     finally:
         os.chdir(here)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())

@@ -7,7 +7,8 @@
   outside its prior, or inferred noise levels that disagree with a robust
   scale of the fit's own residuals (:func:`robust_noise_ratio`: bad rows
   dragged the noise, and with it every sd). Such a fit is reported as not
-  converged, naming the rows that fit worst.
+  converged, naming the rows that fit worst (a failed model check:
+  :mod:`bayescal.checks.misfit`).
 
 See ``docs/robustness.md``.
 """
@@ -138,12 +139,15 @@ def robust_noise_ratio(m, dof):
 
 
 def worst_rows(m, dof, n=5):
-    """The ``n`` rows (0-based) whose residuals are least likely under the model."""
-    from scipy import stats
-
+    """The ``n`` rows (0-based) whose residuals are least likely under the model (ranked by
+    the Wilson-Hilferty normal score of ``m / dof``, which, unlike the chi-square tail
+    probability, does not underflow to a tie among the far rows)."""
     m = np.asarray(m, dtype=float)
-    tail = stats.chi2.logsf(np.where(np.isfinite(m), m, np.inf), np.asarray(dof, float))
-    return np.argsort(tail)[:n]
+    dof = np.broadcast_to(np.asarray(dof, dtype=float), m.shape)
+    v = 2.0 / (9.0 * dof)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        z = (np.cbrt(np.maximum(m, 0.0) / dof) - (1.0 - v)) / np.sqrt(v)
+    return np.argsort(-np.where(np.isfinite(z), z, np.inf), kind="stable")[:n]
 
 
 def fit_problems(params, prior, *, noise_ratio=None, given_ratio=None):

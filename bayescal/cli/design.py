@@ -1,5 +1,7 @@
 """Design values of a calibration: ``--nominal`` (whole or in part), the image size, and the
-focal scale the data imply.
+focal scale the data imply. The rule lives in the library
+(:func:`bayescal.fit.start.design_values`, which the library also applies without an image
+size when no prior is given); this module reads the options and says what was derived.
 
 The paper's sensor (:meth:`~bayescal.SensorParams.paper`) has an 800x600 image. For any
 other image size the design values that ``--nominal`` does not give are derived:
@@ -83,51 +85,17 @@ def image_size_setting(option, data):
 
 
 def centre_sd(image_size):
-    """Prior sd of the principal point (px) when it is the image centre, not a design value."""
-    return max(10.0, min(image_size) / 40.0)
+    """Prior sd of the principal point (px) when it is the image centre, not a design value
+    (:func:`bayescal.fit.start.centre_sd`)."""
+    from ..fit.start import centre_sd as sd
 
-
-def _unit_radius(points, xi):
-    """``rho / (xi r - z)``: the pixel radius of eq. (1) at unit focal scale."""
-    p = np.asarray(points, float)
-    r = np.linalg.norm(p, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.hypot(p[..., 0], p[..., 1]) / (xi * r - p[..., 2])
-
-
-def _plan_points(plan, base):
-    """Points of the nominal cone on the plan's walls at 720 azimuths, (M, 3) mm."""
-    from ..scene.floorplan import wall_range
-    from ..sensor.laser import cone_point
-
-    t = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    rho = wall_range(t[:, None], plan.distances[None, :], plan.angles[None, :])[0]
-    rho = np.nanmin(np.where(rho > 0, rho, np.nan), axis=1)
-    ok = np.isfinite(rho)
-    xy = rho[ok, None] * np.stack([np.cos(t[ok]), np.sin(t[ok])], axis=-1)
-    return cone_point(base, xy)
-
-
-def _focal_scale(data, plan, base, image_size):
-    """The focal scale (px) the data imply at the nominal ``xi, h, beta`` and centre; and
-    how it was found."""
-    pixels = None if data is None else data.pixels
-    d = None if pixels is None else np.hypot(pixels[:, 0] - base.u0, pixels[:, 1] - base.v0)
-    if d is not None and data.approx_points is not None:
-        m = _unit_radius(data.approx_points, base.xi)
-        ok = np.isfinite(m) & (m > 0) & (d > 0)
-        if ok.sum() >= 3:
-            return float(np.median(d[ok] / m[ok])), "approximate points"
-    if d is not None and plan is not None:
-        m = _unit_radius(_plan_points(plan, base), base.xi)
-        m = m[np.isfinite(m) & (m > 0)]
-        if m.size:
-            return float(np.median(d) / np.median(m)), "floor plan"
-    return 55.0 * min(image_size) / min(PAPER_IMAGE_SIZE), "image size"
+    return sd(image_size)
 
 
 def design_values(given, *, image_size, data=None, plan=None):
-    """The nominal sensor: ``given`` design values, the rest derived from the image size.
+    """The nominal sensor: ``given`` design values, the rest derived from the image size
+    and the data (:func:`bayescal.fit.start.design_values`, the library's rule with the
+    image size known).
 
     Parameters
     ----------
@@ -147,27 +115,16 @@ def design_values(given, *, image_size, data=None, plan=None):
         ``{name: how}`` of the values not given (empty for the paper's image size, whose
         defaults are the paper's sensor).
     """
-    from ..sensor.parameters import SensorParams
+    from ..errors import InvalidValueError
+    from ..fit.start import design_values as library_design
 
-    base = SensorParams.paper().as_dict()
-    derived = {}
-    if tuple(image_size) != PAPER_IMAGE_SIZE:
-        w, h = image_size
-        for name, value in (("u0", w / 2.0), ("v0", h / 2.0)):
-            if name not in given:
-                base[name], derived[name] = value, "image centre"
-        if "alpha_u" not in given or "alpha_v" not in given:
-            probe = SensorParams(**{**base, **given})
-            scale, how = _focal_scale(data, plan, probe, image_size)
-            scale /= probe.xi + probe.phi          # gamma = alpha (xi + phi)
-            for name, sign in (("alpha_u", 1.0), ("alpha_v", -1.0)):
-                if name not in given:
-                    base[name], derived[name] = sign * scale, f"focal scale from the {how}"
-    base.update(given)
+    pixels = None if data is None else data.pixels
+    points = None if data is None else data.approx_points
     try:
-        return SensorParams(**base), derived
-    except (TypeError, ValueError) as exc:
-        raise UsageError(f"--nominal: {exc}") from None
+        return library_design(pixels, points, plan=plan, image_size=tuple(image_size),
+                              given=given)
+    except InvalidValueError as exc:
+        raise UsageError(f"--nominal: {str(exc).removeprefix('design values: ')}") from None
 
 
 def note_flagged(table, n_kept, what):

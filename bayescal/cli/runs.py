@@ -325,18 +325,18 @@ def _calibrate(job, choice):
         result.extras["sigma_scene"] = np.asarray(job.sigma_scene, float)
     if not result.converged:
         return result, f"{job.method} calibration did not converge: {_located(result, data)}"
-    return result, None
+    misfit = result.extras.get("model_misfit") and _located(result, data, "misfit_message")
+    return result, f"{job.method} calibration: {misfit}" if misfit else None   # 1: written
 
 
-def _located(result, data):
-    """A result's message with the rows it names (``extras["failed_rows"]``) as file lines."""
+def _located(result, data, key=None):
+    """A result's message (or ``extras[key]``), the rows it names as the file's lines."""
     from ..checks.datafile import rows_to_lines
-
-    rows = result.extras.get("failed_rows")
+    rows, text = result.extras.get("failed_rows"), str(result.extras.get(key, result.message))
     if rows is None or data is None:
-        return result.message
+        return text
     lines = ", ".join(map(str, rows_to_lines(data, rows)))
-    text = str(result.message).split(" (rows fitting worst", 1)[0]
+    text = text.split(" (rows fitting worst", 1)[0]
     return f"{text} (input fitting worst: {data.pixel_table.path} lines {lines})"
 
 

@@ -3,7 +3,7 @@
 :func:`robust_retry` looks at the solution :func:`bayescal.fit.floorplan._fit` chose and,
 when it cannot be trusted - a parameter on the bound of its domain or far outside its
 prior, an inferred pixel noise that disagrees with a robust scale of its own residuals or
-exceeds :data:`~bayescal.fit.em.TRIMMED_NOISE_LIMIT` times its estimate from the
+exceeds :data:`~bayescal.fit.start.TRIMMED_NOISE_LIMIT` times its estimate from the
 best-fitting 80 % of the points, or residuals far above a given noise - fits again from a
 least-trimmed start (:func:`robust_solution`), the same retry as the per-point fit's
 (:func:`bayescal.fit.em._robust_start`). Kept apart from :mod:`bayescal.fit.floorplan`
@@ -16,7 +16,7 @@ import numpy as np
 
 from ..checks.fit import fit_problems, robust_noise_ratio
 from ..likelihood.outliers import NOISE_TRIM, trimmed_mean_square
-from .em import ROBUST_KEEP, ROBUST_STEPS, TRIMMED_NOISE_LIMIT, trimmed_weights
+from .start import ROBUST_KEEP, ROBUST_STEPS, TRIMMED_NOISE_LIMIT, trimmed_weights
 
 __all__ = ["PlanRetry"]
 

@@ -14,8 +14,8 @@ import numpy as np
 from ..errors import InvalidValueError
 from ..sensor.laser import cone_points_geo
 
-__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "SINGULAR_FLOOR", "STALL_WINDOW",
-           "STALL_TOL"]
+__all__ = ["solve_map", "MapSolution", "damped_step", "safe_inv", "in_domain", "SINGULAR_FLOOR",
+           "STALL_WINDOW", "STALL_TOL", "STALL_ABS"]
 
 
 class MapSolution:
@@ -35,11 +35,19 @@ class MapSolution:
     cov_theta_phi : ndarray, shape (n_geo + 1, n_geo + 1)
         Laplace covariance of (theta, phi) (phi last).
     cov_points : ndarray, shape (N, 3, 3)
-        Laplace covariance of each 3D point (parameters' uncertainty included).
+        Laplace covariance of each 3D point (parameters' uncertainty included), computed
+        when first read (a third of a start's cost when every solve computed it).
     """
 
     def __init__(self, **kw):
         self.__dict__.update(kw)
+
+    @property
+    def cov_points(self):
+        if "_cov_points" not in self.__dict__:
+            self._cov_points = _point_covariances(self.theta, self.q, self.Cinv, self.B,
+                                                  self.cov_theta, self.weights)
+        return self._cov_points
 
 
 def _prior_rows(prior, psi, *, jacobian=True):
@@ -85,7 +93,19 @@ def _normal_equations(lik, prior, psi, q, sig, w, u):
     return cost, A, B, C, gt, gq, R
 
 
+def in_domain(psi):
+    """Whether ``psi = (geometry, phi)`` lies where the model is defined: ``xi > 0``,
+    ``xi + phi > 0``, ``h > 0``, ``0 < beta < pi/2``. A step that leaves it is refused
+    like one that raises the cost (the damping grows until the step stays inside), so
+    no parameter walks through a bound of its domain inside the solver (an ``h`` walked
+    through zero used to end the fit in a ValueError: ``docs/robustness.md``, 4c)."""
+    xi, h, beta, phi = psi[0], psi[5], psi[6], psi[-1]
+    return bool(xi > 0 and xi + phi > 0 and h > 0 and 0 < beta < np.pi / 2)
+
+
 def _cost(lik, prior, psi, q, sig, w, u):
+    if not in_domain(psi):
+        return np.inf
     R = lik.residuals(psi[:lik.n_geo], q, sig, w)
     rp = _prior_rows(prior, psi, jacobian=False)
     c = 0.5 * (np.sum(u * np.sum(R * R, axis=1)) + rp @ rp)
@@ -105,9 +125,12 @@ def _schur_step(A, B, C, gt, gq, lam, u):
     return dt, dq
 
 
-#: the solver stops as converged when its cost fell by less than ``STALL_TOL`` (relative)
-#: over the last ``STALL_WINDOW`` accepted steps (a crawl that used to end at max_iter)
-STALL_WINDOW, STALL_TOL = 20, 1e-8
+#: the solver stops as converged when its cost fell by less than ``STALL_TOL`` (relative),
+#: or by less than ``STALL_ABS`` (the cost is half a chi-square: a parameter 0.045 sd from its
+#: optimum adds 1e-3), over the last ``STALL_WINDOW`` accepted steps: a crawl that used to
+#: end at max_iter (an outlier's point running along its ray to infinity, its weight 1e-4:
+#: the cost fell by 4e-4 per 20 steps, 9e-7 of itself, and the parameters by 1e-5 sd)
+STALL_WINDOW, STALL_TOL, STALL_ABS = 20, 1e-8, 1e-3
 
 
 def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
@@ -173,7 +196,7 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
             break
         history.append(cost)
         if len(history) > STALL_WINDOW and \
-                history[-STALL_WINDOW - 1] - cost < STALL_TOL * max(cost, 1e-300):
+                history[-STALL_WINDOW - 1] - cost < max(STALL_TOL * cost, STALL_ABS):
             # crawling along a flat direction (e.g. an outlier's nearly free point): the
             # cost no longer changes by anything the noise could tell apart
             converged, message = True, "converged (cost stationary over the last steps)"
@@ -190,8 +213,7 @@ def solve_map(lik, prior, theta0, q0, *, phi=None, sigma_px=None, w_scene=None,
     return MapSolution(theta=theta[:nt], q=q, cost=float(cost), cov_theta=cov_t,
                        cov_theta_phi=cov_full, Cinv=Cinv, B=B[:, :nt], R=R, A=A, nfev=nfev,
                        n_iter=n_done, converged=converged, message=message, phi=float(theta[nt]),
-                       info_data=info_data, weights=u,
-                       cov_points=_point_covariances(theta[:nt], q, Cinv, B[:, :nt], cov_t, u))
+                       info_data=info_data, weights=u)
 
 
 def damped_step(propose, cost_of, cost, lam, *, max_tries=30):

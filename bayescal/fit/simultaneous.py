@@ -20,20 +20,22 @@ it (only ``alpha (xi + phi)`` is seen: fact 1, same section).
 from __future__ import annotations
 
 import functools
+import warnings
 
 import numpy as np
 
 from .._validation import check_positive
-from ..checks.fit import NoiseCollapseError, check_noise_levels, flag_untrusted, worst_rows
+from ..checks.fit import NoiseCollapseError, check_noise_levels
 from ..checks.inputs import check_calibration_input
+from ..checks.misfit import ModelMisfitWarning, flag_misfit
 from ..errors import InvalidTypeError, InvalidValueError, UnsupportedError
 from ..likelihood.misaligned import MisalignedLikelihood
-from ..likelihood.outliers import NOISE_TRIM, OUTLIER_PRIOR, OUTLIER_SCALE
+from ..likelihood.outliers import OUTLIER_PRIOR, OUTLIER_SCALE
 from ..likelihood.points import LaserLikelihood
-from ..likelihood.priors import as_prior
 from ..results.calibration import (
     CalibrationResult,
     ConvergenceError,
+    covariance_8_from_identifiable,
     identifiability_report,
 )
 from ..scene.floorplan import FloorPlan
@@ -46,11 +48,11 @@ from ..sensor.parameters import (
     offset_variance,
     to_identifiable,
 )
-from ..sensor.pose import POSE_NAMES, LaserPose
-from .em import TRIMMED_NOISE_LIMIT, _fit_map, _fit_noise
-from .fixed_points import calibrate_fixed_points
+from ..sensor.pose import POSE_NAMES
+from .em import _fit_map, _make_result
 from .floorplan import calibrate_plan
 from .schur import MapSolution, solve_map
+from .start import data_prior, point_start
 
 __all__ = ["calibrate_simultaneous", "solve_map", "MapSolution", "MODELS", "check_model",
            "point_likelihood"]
@@ -208,7 +210,8 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     model = check_model(model)
     offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
     ring_corr_deg = _ring_corr(ring_corr_deg, approx_points)
-    prior = as_prior(prior, camera)
+    from_data = init is None and camera is None
+    prior, design = data_prior(prior, camera, pixels, approx_points)
     if model == "misaligned" and not estimate_points:
         raise UnsupportedError("model='misaligned' needs the points estimated "
                                   "(estimate_points=True, or a FloorPlan)")
@@ -241,31 +244,24 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
                            sigma_scene=sigma_scene, outliers=outliers and estimate_points,
                            outlier_scale=outlier_scale, outlier_prior=outlier_prior,
                            pixel_cov=pixel_cov)
+    if not estimate_points:
+        return _with_offset(calibrate_fixed_points(lik, prior, init, absolute_sigma,
+                                                   raise_on_failure), offset_sd)
     theta0 = to_identifiable(init.to_array())
     if lik.n_geo > 7:                                   # the pose starts at its prior mean
         theta0 = np.concatenate([theta0, [float(prior.pose_dists[n].mean())
                                           for n in POSE_NAMES]])
-    q0 = lik.initial_q(theta0)
-    if not estimate_points:
-        return _with_offset(calibrate_fixed_points(lik, prior, init, absolute_sigma,
-                                                   raise_on_failure), offset_sd)
-
-    result, problem = _checked(lik, prior, _fit_map(lik, prior, theta0, q0, max_iter),
-                               absolute_sigma)
-    if problem is not None and lik.outliers:
-        # a parameter or noise level on its bound is a symptom of a start the bad rows
-        # dragged: try the high-breakdown start before giving up (docs/robustness.md)
-        again, problem2 = _checked(lik, prior, _fit_map(lik, prior, theta0, q0, max_iter,
-                                                        robust=True), absolute_sigma)
-        if problem2 is None:
-            result, problem = again, None
+    if from_data:                 # the camera read off the data, not the design's
+        theta0 = point_start(lik, theta0, prior)
+    fit = _fit_map(lik, prior, theta0, lik.initial_q(theta0), max_iter)
+    result, problem = _checked(lik, prior, fit, absolute_sigma)
     if isinstance(problem, NoiseCollapseError):
         raise problem
+    result.extras["design"] = design
     if problem is not None and raise_on_failure:
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return _with_offset(result, offset_sd)
-
 
 
 def _ring_corr(deg, approx_points):
@@ -292,7 +288,7 @@ def _with_offset(result, offset_sd):
 
 def _checked(lik, prior, fit, absolute_sigma):
     """The result of a fit and what is wrong with it (None, a NoiseCollapseError, or
-    ``"not converged"``: the result says why)."""
+    ``"not converged"``: the result says why, a failed model check included)."""
     if lik.n_noise:
         try:
             check_noise_levels(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]),
@@ -301,34 +297,11 @@ def _checked(lik, prior, fit, absolute_sigma):
             return None, exc
     result = _make_result(lik, prior, fit, absolute_sigma, False)
     result.extras["robust_start"] = fit.robust
-    if result.converged and lik.n_noise and lik.outliers and not fit.robust:
-        _check_trimmed_noise(lik, fit, result)
+    if result.converged:
+        misfit = flag_misfit(result)
+        if misfit:
+            warnings.warn(misfit, ModelMisfitWarning, stacklevel=4)
     return result, None if result.converged else "not converged"
-
-
-def _check_trimmed_noise(lik, fit, result):
-    """Mark ``result`` not converged when a block of rows the mixture kept as inliers set
-    the inferred noise: the level exceeds :data:`TRIMMED_NOISE_LIMIT` times its estimate
-    from the best-fitting points (a ghost ring's 15 rows doubled sigma_px, flagged none).
-    Applied to the plain start only: it sends the fit to the robust start, whose result
-    the other checks judge (so that data whose residuals are heavy-tailed everywhere are
-    not refused on this ratio alone)."""
-    sig, kappa = _fit_noise(lik, fit, trim=NOISE_TRIM)
-    ratios = [("sigma_px", fit.sig / sig)] if lik.infer_px else []
-    if lik.infer_scene:
-        ratios.append(("kappa", fit.kappa / kappa))
-    bad = [(n, r) for n, r in ratios if r > TRIMMED_NOISE_LIMIT]
-    if not bad:
-        return
-    m = lik.min_residual(np.concatenate([fit.sol.theta, fit.extra(lik)]), fit.sol.q)
-    rows = worst_rows(m, np.maximum(lik._n_rows - 2, 1))
-    name, ratio = bad[0]
-    result.converged = False
-    result.message = (f"the inferred {name} is {ratio:.3g} times its estimate from the best-"
-                      f"fitting {1 - NOISE_TRIM:.0%} of the points: a few rows set it, and "
-                      "every sd with it (rows fitting worst, 0-based: "
-                      + ", ".join(map(str, rows)) + ")")
-    result.extras["failed_rows"] = rows
 
 
 def point_likelihood(model, pixels, approx_points, prior, **kw):
@@ -339,113 +312,55 @@ def point_likelihood(model, pixels, approx_points, prior, **kw):
     return LaserLikelihood(pixels, approx_points, **kw)
 
 
-def _make_result(lik, prior, fit, absolute_sigma, raise_on_failure):
-    n, nt = lik.n, lik.n_geo
-    sol, sig, w = fit.sol, fit.sig, np.broadcast_to(fit.w_scene(lik), (n, 3))
-    noise = {"sigma_px": sig, "kappa": fit.kappa if lik.infer_scene else None}
-    if lik.outliers:
-        noise["outlier_frac"] = float(fit.w)
-    R = sol.R
-    # degrees of freedom of the data rows only: the 8 prior rows carry no noise and
-    # phi is fixed by them alone, so neither enters the noise estimate
-    n_res = 2 * n + int(np.count_nonzero(w))
-    n_unk = nt + 2 * n
-    # outliers (probability r) leave the noise statistics: each point counts 1 - r
-    keep = 1.0 - fit.r
-    n_res_in = float(np.sum(keep * (2 + np.count_nonzero(w, axis=1))))
-    chi2 = float(np.sum(keep * np.sum(R * R, axis=1)))
-    red = chi2 / max(n_res_in - nt - 2 * np.sum(keep), 1)
-    scale = 1.0 if absolute_sigma else red
-    theta7 = sol.theta[:7]
-    J = identifiable_jacobian(theta7, sol.phi)
-    sub = np.r_[0:7, nt]                                # (theta, phi) without the pose
-    cov8 = J @ (sol.cov_theta_phi[np.ix_(sub, sub)] * scale) @ J.T
-    cov8 = 0.5 * (cov8 + cov8.T)
-    params = SensorParams.from_array(from_identifiable(theta7, sol.phi))
-    pix_rms, scene_rms = _residual_rms(lik, R, keep, w, sig)
+def calibrate_fixed_points(lik, prior, init, absolute_sigma, raise_on_failure):
+    """Points taken as exact: pixel rows of eq. (1) and the cone through the points."""
+    from scipy.optimize import least_squares
+
+    from ..sensor.camera import project_theta
+    from ..sensor.laser import triangulate_theta
+
+    if lik.infer_px or lik.infer_scene:
+        raise InvalidValueError(
+            "estimate_points=False needs sigma_px and sigma_scene given (not None)")
+    sig = lik.sigma_px
+    P = lik.approx
+    phi = float(prior.dists["phi"].mean())
+    # scene sd along the cone normal, per point
+    rho = np.hypot(P[:, 0], P[:, 1])
+
+    def fun(t):
+        uv, _ = project_theta(t, P)
+        b = t[6]
+        nrm = np.stack([np.cos(b) * P[:, 0] / rho, np.cos(b) * P[:, 1] / rho,
+                        np.full(len(P), -np.sin(b))], -1)
+        with np.errstate(divide="ignore"):
+            var_n = np.sum(nrm**2 / lik.w_scene**2, axis=1)       # inf where an axis is blind
+        s_n = 1.0 / np.sqrt(var_n)
+        dist = rho * np.cos(b) - (P[:, 2] + t[5]) * np.sin(b)
+        rp = prior.residuals(from_identifiable(t, phi))
+        return np.concatenate([((uv - lik.pixels) / sig).ravel(), dist * s_n, rp])
+
+    t0 = to_identifiable(init.to_array())
+    opt = least_squares(fun, t0, x_scale="jac", method="lm", xtol=1e-12, ftol=1e-12)
+    J = opt.jac
+    data_rows = opt.fun[:-8]                          # the last 8 rows are the priors
+    n_res, n_unk = len(data_rows), 7
+    red = float(data_rows @ data_rows) / max(n_res - n_unk, 1)
+    cov7 = np.linalg.inv(J.T @ J) * (1.0 if absolute_sigma else red)
+    cov8 = covariance_8_from_identifiable(opt.x, phi, cov7, float(prior.dists["phi"].var()))
+    params = SensorParams.from_array(from_identifiable(opt.x, phi))
+    pts, _ = triangulate_theta(opt.x, lik.pixels)
+    uv, _ = project_theta(opt.x, P)
+    dtheta_da = np.linalg.inv(identifiable_jacobian(opt.x, phi))[:7]
     result = CalibrationResult(
-        method="simultaneous", params=params, points=lik.points_3d(sol.theta, sol.q),
-        covariance=cov8, covariance_identifiable=sol.cov_theta * scale,
-        laser=LaserPose.from_array(sol.theta[7:], h=params.h) if nt > 7 else None,
-        residual_rms={"pixel_px": pix_rms, "scene_mm": scene_rms},
+        method="simultaneous", params=params, points=pts, covariance=cov8,
+        covariance_identifiable=cov7,
+        residual_rms={"pixel_px": float(np.sqrt(np.mean((uv - lik.pixels) ** 2)))},
         sigma_px_estimated=float(sig * np.sqrt(red)), n_residuals=n_res, n_unknowns=n_unk,
-        converged=bool(sol.converged and np.all(np.isfinite(sol.theta))), message=sol.message,
-        nfev=sol.nfev, identifiability=_identifiability(sol),
-        extras={"point_covariance": sol.cov_points * scale, "map": sol, "noise": noise,
-                "theta": sol.theta,
-                "identifiable_names": IDENTIFIABLE_NAMES + POSE_NAMES[:nt - 7],
-                "reduced_chi2": red, "em_rounds": fit.n_rounds, **_fitted_data(lik),
-                "log_evidence": _log_evidence(lik, prior, fit),
-                "pose_prior_sd": (np.array([prior.pose_dists[n].std() for n in POSE_NAMES])
-                                  if nt > 7 else None)},
-        outlier_prob=fit.r.copy() if lik.outliers else None)
-    if result.converged:
-        m = lik.min_residual(np.concatenate([sol.theta, fit.extra(lik)]), sol.q)
-        flag_untrusted(result, prior, m, np.maximum(lik._n_rows - 2, 1),
-                       noise_inferred=bool(lik.n_noise))
+        converged=bool(opt.success), message=str(opt.message), nfev=int(opt.nfev),
+        identifiability=identifiability_report(J @ dtheta_da, PARAM_NAMES),
+        extras={"theta": opt.x, "reduced_chi2": red})
     if not result.converged and raise_on_failure:
-        raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
+        raise ConvergenceError(f"simultaneous calibration did not converge: {opt.message}",
                                result=result)
     return result
-
-
-def _log_evidence(lik, prior, fit):
-    """Laplace estimate of the log evidence of the fitted model (``docs/model.md``,
-    "Which model"): the collapsed log likelihood (points integrated out) and the log
-    prior at the MAP, plus ``(d/2) log 2 pi + log det(cov)/2`` of the d geometric
-    unknowns; the noise levels and outlier fraction are held at their fitted values.
-    Comparable between the aligned and misaligned fits of the same data."""
-    sol = fit.sol
-    psi = np.concatenate([sol.theta, fit.extra(lik)])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        value = (lik.laplace(psi, sol.q)[0] + prior.logpdf_theta(psi[:7])
-                 + lik.log_prior_extra(psi[7:]))
-        sign, logdet = np.linalg.slogdet(sol.cov_theta)
-    d = len(sol.theta)
-    return float(value + 0.5 * d * np.log(2 * np.pi) + 0.5 * logdet) if sign > 0 else np.nan
-
-
-def _identifiability(sol):
-    """What the data alone (points reduced out by the Schur complement, priors left out)
-    determine of the 8 paper parameters (and the pose): square-root rows of that
-    information, in the paper's coordinates."""
-    nt = len(sol.theta)
-    e, V = np.linalg.eigh(0.5 * (sol.info_data + sol.info_data.T))
-    root = np.sqrt(np.clip(e, 0, None))[:, None] * V.T
-    T = np.zeros((nt, nt + 1))                        # d geometry / d (paper, pose)
-    T[:7, :8] = np.linalg.inv(identifiable_jacobian(sol.theta[:7], sol.phi))[:7]
-    T[7:, 8:] = np.eye(nt - 7)
-    return identifiability_report(root @ T, PARAM_NAMES + POSE_NAMES[:nt - 7])
-
-
-def _residual_rms(lik, R, keep, w, sig):
-    """RMS of the inliers' pixel residuals (px) and scene residuals (mm) at the fit."""
-    R_px = R[:, :2]
-    if lik.px_white is not None:        # back to px: undo the per-point whitening
-        a, b, c = lik.px_white.T
-        rv = R_px[:, 1] / c
-        R_px = np.stack([(R_px[:, 0] - b * rv) / a, rv], axis=-1)
-    pix_rms = float(np.sqrt(np.sum(keep[:, None] * (R_px * sig) ** 2)
-                            / max(2 * np.sum(keep), 1e-300)))
-    mask = w > 0
-    scene_res = np.where(mask, R[:, 2:] / np.where(mask, w, 1.0), 0.0)
-    scene_rms = float(np.sqrt(np.sum(keep[:, None] * scene_res**2)
-                              / max(np.sum(keep[:, None] * mask), 1e-300)))
-    return pix_rms, scene_rms
-
-
-def _fitted_data(lik):
-    """What the result keeps of its data for its model check: pixels, approximate points,
-    the per-point pixel covariances and the noise levels that were given (``None`` when
-    inferred)."""
-    given = not lik.infer_scene
-    cov = None
-    if lik.px_white is not None:                       # back from L (L^T L = cov^-1)
-        a, b, c = lik.px_white.T
-        cov = np.linalg.inv(np.stack([np.stack([a * a, a * b], -1),
-                                      np.stack([a * b, b * b + c * c], -1)], -2))
-    return {"pixels": lik.pixels.copy(), "approx_points": lik.approx.copy(), "pixel_cov": cov,
-            "sigma_px": None if lik.infer_px else float(lik.sigma_px),
-            "sigma_scene": (np.where(lik.w_scene > 0, 1.0 / np.where(lik.w_scene > 0,
-                                                                      lik.w_scene, 1.0),
-                                     np.inf) * np.ones((lik.n, 3))) if given else None}

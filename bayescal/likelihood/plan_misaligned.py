@@ -56,6 +56,22 @@ class MisalignedPlanLikelihood(PoseGlobals, PlanGradient, PlanLikelihood):
     #: net of the pose's scale (:func:`bayescal.mcmc.coordinates.pose_scale`) tau is ~3 and 80
     #: steps do: the tuning then took half the CPU, ``docs/floorplan.md`` section 13, item 8
     tune_steps = 80
+    #: the first tuning round's independence acceptance from which the sampler would leave
+    #: HMC out (``bayescal.mcmc.steps.IMH_FITS``, 0.15, for the others): never here. The
+    #: first round from the least-squares Laplace covariance accepts 10-17 % on plans not
+    #: tuned on (8-12 % on the benchmark plans), and at 15-17 % the chains without HMC had max
+    #: tau 10-38 (716-2560 steps, up to 15.7 s of CPU per 1000 ESS, 6.3x the aligned plan
+    #: posterior) where with HMC 1.8-4.8; the first round stays, as a warm-up (HMC from its
+    #: start had max tau 3.5-9.5 against 3.0-5.6); docs/floorplan.md section 13, item 9
+    imh_fits = float("inf")
+    #: the production chain's smallest burn-in, a fraction of the chain (the sampler's
+    #: default ``bayescal.mcmc.steps.BURN_FLOOR``, 0.25): none, the burn-in is 5 tau, as for
+    #: the aligned cone with approximate points. The chain starts from the last tuning
+    #: round's walkers (HMC on the same target); over the steps between 5 tau and a quarter
+    #: of the chain the means agree with the rest's (z rms 0.77-1.39 over 22-26 coordinates,
+    #: the largest 2.53, five plans), and the seed-scatter check of the ESS
+    #: passes; docs/floorplan.md section 13, item 9
+    burn_floor = 0.0
     #: sample the apparent principal point (:func:`bayescal.mcmc.coordinates.pose_shift`)
     #: and the ring radii net of the pose's scale (``pose_scale``): max tau 31 -> 6.9 here
     #: with the first (150 points; the walls as they are, not net of the pose), 8.8 -> 3.5

@@ -4,8 +4,8 @@
 Kept apart from :mod:`bayescal.likelihood.points` for size; used by
 :meth:`bayescal.likelihood.points.LaserLikelihood.laplace` and
 :meth:`~bayescal.likelihood.points.LaserLikelihood.grad_log_marginal`; the aligned cone's
-fused passes also serve the point draws (:func:`draw_proposal`, :func:`draw_log_density`)
-and the posterior's outlier probabilities (:func:`outlier_probs`).
+fused passes also serve the point draws (:mod:`bayescal.likelihood.point_draws`) and the
+posterior's outlier probabilities (:func:`outlier_probs`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ _LOG2PI = np.log(2 * np.pi)
 
 __all__ = ["grad_terms", "point_terms", "normal_terms", "cone_height", "pixel_whitening",
            "whiten", "whiten_pair", "marginal_sum", "marginal_block",
-           "point_columns", "draw_proposal", "draw_log_density", "outlier_probs"]
+           "point_columns", "outlier_probs"]
 
 
 def pixel_whitening(pixel_cov, n):
@@ -283,11 +283,12 @@ def _walker_terms(theta, sig):
             "cv": t[:, 4] * inv_s}
 
 
-def _fused_terms(p, c, x, y, w, last, keep_cp):
+def _fused_terms(p, c, x, y, w, last, keep_cp, grad=True):
     """:func:`point_terms` of the aligned cone in fewer passes (in place, rho-based slopes):
     ``(rr, (C00, C01, C11), g0, g1, (Cp, Cs) or None)`` with ``C = Cp + Cs`` (``rr`` only
     on the ``last`` pass). ``x, y`` (N,) on the first Gauss-Newton pass (the shared start:
-    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N)."""
+    per-point work stays (N,)), else (W, N); ``w`` = ``(wx, wy, wz)``, each (N,) or (W, N).
+    Without ``grad`` (a density alone) C, g0 and g1 are None (the same ``rr`` and parts)."""
     xi, iT, inv_s = p["xi"], p["iT"], p["inv_s"]
     wx, wy, wz = w
     rho2 = x * x + y * y
@@ -325,22 +326,27 @@ def _fused_terms(p, c, x, y, w, last, keep_cp):
     vy *= b                                         # d rv / d y
     pm = (x * cy) * t
     nuy, nvx = a * pm, b * pm                       # -d ru / d y, -d rv / d x
-    g0 = ux * ru - nvx * rv
-    g1 = vy * rv - nuy * ru
     sx, sy = (wz * cx) * iT, (wz * cy) * iT           # wz dz/dx, wz dz/dy
     rx, ry = (x - c["ax"]) * wx, (y - c["ay"]) * wy
     rz = z - c["az"]
     rz *= wz
-    g0 += wx * rx + sx * rz
-    g1 += wy * ry + sy * rz
+    g0 = g1 = C = None
+    if grad:
+        g0 = ux * ru - nvx * rv
+        g1 = vy * rv - nuy * ru
+        g0 += wx * rx + sx * rz
+        g1 += wy * ry + sy * rz
     rr = None
     if last:
         rr = ru * ru
         rr += rv * rv
         rr += rx * rx + ry * ry + rz * rz
+    if not (grad or keep_cp):
+        return rr, C, g0, g1, None
     cp = (ux * ux + nvx * nvx, ux * nuy + nvx * vy, nuy * nuy + vy * vy)   # cp[1]: -Cp01
     cs = (wx * wx + sx * sx, sx * sy, wy * wy + sy * sy)
-    C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
+    if grad:
+        C = (cp[0] + cs[0], cs[1] - cp[1], cp[2] + cs[2])
     return rr, C, g0, g1, (((cp[0], -cp[1], cp[2]), cs) if keep_cp else None)
 
 
@@ -393,57 +399,6 @@ def _noise_setup(lik, theta, extra, sig):
         w, ss = (c["wx"], c["wy"], c["wz"]), np.ones(len(theta))
     return {"p": _walker_terms(theta, sig), "c": c, "w": w, "kappa": kappa,
             "sp": (sig / lik.ref_sigma_px) ** 2, "ss": ss}
-
-
-def _draw_setup(lik, psi):
-    """:func:`_noise_setup` of ``psi`` (W, d) and its ``extra``, for the point draws."""
-    psi = np.asarray(psi, dtype=float)
-    extra = psi[:, 7:]
-    sig = np.exp(extra[:, 0]) if lik.infer_px else np.full(len(psi), lik.sigma_px)
-    return _noise_setup(lik, psi[:, :7], extra, sig), extra
-
-
-def draw_proposal(lik, psi, q0, n_iter):
-    """The point draws' Laplace proposal of the aligned cone in fused passes: the modes
-    ``(x, y)`` (W, N) and precisions ``(C00, C01, C11)`` (W, N) of
-    :meth:`~bayescal.likelihood.points.LaserLikelihood.laplace` (``q`` and ``C``, the
-    outlier mixture's moment-matched scaling included); ``None`` where the fused passes do
-    not apply (:func:`_fused_applies`). ``psi`` (W, d), ``q0`` (N, 2) or (W, N, 2)."""
-    if not _fused_applies(lik, psi, q0):
-        return None
-    q0 = np.asarray(q0, dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        s, extra = _draw_setup(lik, psi)
-        g = _fused_newton(s["p"], s["c"], q0[..., 0], q0[..., 1], s["w"], n_iter, False)
-        C = g["C"]
-        if lik.outliers:
-            r = _mix_sum(extra[:, -1], g["m"], lik._n_rows, lik.outlier_scale, True)[1]
-            f = 1.0 / ((1.0 - r) + r * lik.outlier_scale**2)
-            C = tuple(ci * f for ci in C)
-    shape = (len(extra), lik.n)
-    return np.broadcast_to(g["x"], shape), np.broadcast_to(g["y"], shape), C
-
-
-def draw_log_density(lik, psi, x, y):
-    """Each point's exact log density of ``(x, y)`` (W, N) given ``psi`` (W, d) for the
-    aligned cone (where :func:`draw_proposal` applies), up to a constant per (walker,
-    point): :meth:`~bayescal.likelihood.points.LaserLikelihood.point_log_density` without
-    its normalisers, which cancel in the draws' Metropolis-Hastings ratios; ``-inf``
-    outside the model's domain."""
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        s, extra = _draw_setup(lik, psi)
-        flat = lik.point_prior == "flat"
-        rr, _, _, _, parts = _fused_terms(s["p"], s["c"], x, y, s["w"], True, not flat)
-        out = -0.5 * rr
-        if not flat:                                # the Jeffreys prior at the reference noise
-            sp, ss = s["sp"][:, None], s["ss"][:, None]
-            c00, c01, c11 = (a * sp + b * ss for a, b in zip(*parts, strict=True))
-            out += 0.5 * np.log(c00 * c11 - c01 * c01)
-        if lik.outliers:                            # outliers.mix(laplace=False), per point
-            scale, lw = lik.outlier_scale, extra[:, -1:]
-            delta = rr * (0.5 * (1.0 - 1.0 / scale**2)) - lik._n_rows * np.log(scale)
-            out += np.logaddexp(log_expit(-lw), log_expit(lw) + delta)
-    return np.where(np.isfinite(out), out, -np.inf)
 
 
 def marginal_sum(lik, theta, extra, sig, q0, n_iter, *, modes=False):

@@ -47,7 +47,7 @@ from ..results.camera import CameraResult
 from ..sensor.board import CAMERA_NAMES
 from ..stats.chains import ChainDiagnostics
 from .collapsed import check_run_options, default_moves, report_unconverged
-from .ensemble import spd_covariance
+from .ensemble import prime_allocator, spd_covariance
 from .moves import IndependenceMove
 from .steps import (
     de_move,
@@ -287,6 +287,7 @@ def sample_camera_posterior(views, rng=None, *, noise="view-systematic", lsq=Non
                       max_steps=max_steps, n_samples=n_samples, n_tune=n_tune,
                       on_unconverged=on_unconverged)
     rng = resolve_rng(rng)
+    prime_allocator()                  # the first call of a process as fast as the next
     views = as_views(views)
     cam, target, s0, cov0 = _start(views, noise, lsq, fit_options)
     ndim = len(s0)

@@ -34,6 +34,7 @@ from .moves import HMCMove, IndependenceMove
 from .steps import (
     BURN_FLOOR,
     HMC_LEAPFROG,
+    IMH_FITS,
     CollapsedTarget,
     Coordinates,
     de_move,
@@ -138,8 +139,10 @@ def _start(target, s_map, cov_s, rng, n_walkers, n_tune, moves, n_rounds):
     if n_tune <= 0:
         return {"mean": s_map, "cov": cov_s, "state": p0, "acceptance": [], "step_size": 0.3,
                 "imh_acceptance": [], "use_hmc": target.has_gradient}
+    # a likelihood may set its own line for leaving HMC out (misaligned plan: imh_fits)
     return tune_proposal(target, p0, s_map, cov_s, rng, n_steps=n_tune, moves=moves,
-                         gradient=target.has_gradient, n_rounds=n_rounds)
+                         gradient=target.has_gradient, n_rounds=n_rounds,
+                         imh_fits=getattr(target.lik, "imh_fits", IMH_FITS))
 
 
 def _thin(chain, burn, n_samples):
@@ -231,7 +234,7 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
                      min_ess=1000, tau_factor=50, max_steps=20000, n_samples=2000,
                      moves=None, progress=True, n_point_mh=2, n_iter=1, n_tune=None,
                      budget=None, draw_iter=None, imh_weight=None, tune_rounds=3,
-                     burn_floor=BURN_FLOOR):
+                     burn_floor=BURN_FLOOR, draw_stepped=False):
     """Sample the globals ``psi`` with the points integrated out, then draw the points.
 
     Parameters
@@ -267,6 +270,9 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     burn_floor : float, optional
         Smallest burn-in, a fraction of the chain (above it: 5 tau;
         :func:`~bayescal.mcmc.steps.run_until_converged`).
+    draw_stepped : bool, optional
+        The point draws' proposal precision one Gauss-Newton step before its mode, where
+        the fused passes apply (:func:`~bayescal.likelihood.points.draw_points`).
 
     Returns
     -------
@@ -332,7 +338,8 @@ def sample_collapsed(lik, prior, psi_map, cov_psi_map, q_map, *, rng=None, n_wal
     psi = coords.from_sampling(_thin(sampler.get_chain(), info["burn"], n_samples))
     # cache-sized batches of (sample, point) pairs (point_draws.DRAW_ELEMENTS)
     q, imh_acc = draw_points(lik, psi, q_map, rng, n_mh=n_point_mh,
-                             n_iter=n_iter + 1 if draw_iter is None else int(draw_iter))
+                             n_iter=n_iter + 1 if draw_iter is None else int(draw_iter),
+                             stepped=draw_stepped)
     # CPU seconds (this process) of the three phases: where a run's time goes
     diag.extra["cpu_seconds"] = {"tuning": t1 - t0, "production": t2 - t1,
                                  "points": time.process_time() - t2}

@@ -251,23 +251,44 @@ class Coordinates:
 
     def from_sampling(self, s):
         """Inverse of :meth:`to_sampling` (NaN where ``w^(1/3)`` is outside (0, 1))."""
+        return self._inverse(s)[0]
+
+    def from_sampling_log_jacobian(self, s):
+        """``(from_sampling(s), log_jacobian(from_sampling(s)))``, the same numbers, with the
+        scales computed once (the sampler's target calls both for every walker)."""
+        psi, k, c, m = self._inverse(s)
+        return psi, self._log_jacobian(psi, k, c, m)
+
+    def _inverse(self, s):
+        """psi of ``s`` and the scales it used: ``(psi, ring_scale, depth_scale, m)`` (``m``
+        None without the pose's ring scale)."""
         psi = np.array(s, dtype=float)
-        psi[..., 5] /= self._scales(psi)[1]
-        k = self._scales(psi)[0]
-        m = self._pose_m(psi)                  # xi, h, beta and the pose are known here
-        psi[..., 1] /= k * (1.0 + m[..., 0])
-        psi[..., 2] /= k * (1.0 + m[..., 1])
+        if self.ring:         # depth_scale reads xi and beta only, ring_scale h too
+            c = depth_scale(psi)
+            psi[..., 5] /= c
+            k = ring_scale(psi, self.rho_ref)
+        else:
+            k = c = np.ones(psi.shape[:-1])
+        m = self._pose_m(psi) if self.pose and self.ring else None
+        if m is None:                          # xi, h, beta and the pose are known here
+            psi[..., 1] /= k
+            psi[..., 2] /= k
+        else:
+            psi[..., 1] /= k * (1.0 + m[..., 0])
+            psi[..., 2] /= k * (1.0 + m[..., 1])
         if self.pose:
             psi[..., 3:5] -= self._shift(psi)
         if self.frac_index is not None:
             y = psi[..., self.frac_index]
             with np.errstate(invalid="ignore", divide="ignore"):
                 psi[..., self.frac_index] = np.where((y > 0) & (y < 1), logit(y**3), np.nan)
-        return psi
+        return psi, k, c, m
 
-    def inverse_jacobian(self, s, eps=1e-8):
+    def inverse_jacobian(self, s, eps=1e-8, *, log_jacobian=False):
         """psi of ``s`` (W, d) and ``d psi / d s``, shape (W, d, d), entry ``[w, k, j] = d
-        psi_j / d s_k``.
+        psi_j / d s_k``; with ``log_jacobian`` also :meth:`log_jacobian` at psi (W,) and its
+        gradient in ``s`` (W, d), from the same shifted copies (it reads only the mixed
+        entries and the outlier fraction, whose term is differentiated in closed form).
 
         Only ``xi``, the ring radii, ``H``, ``beta`` and the pose (entries 0, 1, 2, 5, 6,
         and 7-10 with the pose) move other entries of psi through the scales, the pose's
@@ -285,22 +306,34 @@ class Coordinates:
         h = eps * np.maximum(1.0, np.abs(s[:, mixed]))                 # (W, m)
         E = np.zeros((m, W, d))
         E[np.arange(m), :, mixed] = h.T
-        with np.errstate(invalid="ignore"):
-            out = self.from_sampling(np.concatenate([s[None], s[None] + E]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out, k, c, m = self._inverse(np.concatenate([s[None], s[None] + E]))
             psi = out[0]
             J[:, mixed, :] = np.moveaxis((out[1:] - psi) / h.T[..., None], 0, 1)
             f = self.frac_index
+            y = None if f is None else s[:, f]
             if f is not None:
-                y = s[:, f]
                 J[:, f, f] = np.where((y > 0) & (y < 1), 3.0 / (y * (1.0 - y**3)), np.nan)
-        return psi, J
+            if not log_jacobian:
+                return psi, J
+            lj = self._log_jacobian(out, k, c, m)                        # (1 + m, W)
+            dlj = np.zeros((W, d))
+            dlj[:, mixed] = ((lj[1:] - lj[0]) / h.T).T
+            if f is not None:               # log 3 - log y - log(1 - y^3), y = w^(1/3)
+                dlj[:, f] = -1.0 / y + 3.0 * y * y / (1.0 - y**3)
+        return psi, J, lj[0], dlj
 
     def log_jacobian(self, psi):
         """``log |d psi / d s|`` of :meth:`from_sampling` at psi (..., d)."""
+        k, c = self._scales(psi)
+        return self._log_jacobian(psi, k, c, self._pose_m(psi) if self.pose else None)
+
+    def _log_jacobian(self, psi, k, c, m):
+        """:meth:`log_jacobian` given psi's scales (``m`` None: no pose scale)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            k, c = self._scales(psi)
-            m = self._pose_m(psi)
-            out = -2.0 * np.log(k) - np.log(np.abs(c)) - np.sum(np.log1p(m), axis=-1)
+            out = -2.0 * np.log(k) - np.log(np.abs(c))
+            if m is not None:
+                out = out - np.sum(np.log1p(m), axis=-1)
             if self.frac_index is not None:
                 # x = logit(y^3): dx/dy = 3 y^2 / (w (1 - w)), w = y^3
                 y = np.cbrt(expit(psi[..., self.frac_index]))

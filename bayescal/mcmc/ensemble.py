@@ -5,6 +5,9 @@ A fit that ended on a bound gives a Laplace covariance without a Cholesky factor
 walkers can collapse onto one point in a tuning round; emcee's moves and emcee itself
 then stop with a numpy error. Healthy input passes through untouched (nothing drawn),
 so a healthy run's chain is the same with or without these guards.
+
+:func:`prime_allocator` keeps the first run of a process from paying the kernel for its
+temporaries (``docs/performance.md``).
 """
 
 from __future__ import annotations
@@ -13,7 +16,16 @@ import numpy as np
 
 from ..errors import NotConvergedError
 
-__all__ = ["spd_covariance", "spread_walkers", "COV_FLOOR"]
+__all__ = ["spd_covariance", "spread_walkers", "prime_allocator", "COV_FLOOR", "PRIME_BYTES"]
+
+#: bytes of the block :func:`prime_allocator` allocates and frees: glibc's malloc then
+#: returns up to twice this much freed memory at the top of its heap to the kernel only
+#: when more is free. 8 MiB: the first aligned posterior of a process made 9 000 minor page
+#: faults (0.0-0.1 s of system time) against 335 000 (0.8 s) unprimed, 283 000 with 1 MiB,
+#: 43 000 with 2 MiB (1000 mm z-known room, N = 600); the dynamic threshold's ceiling is
+#: 32 MiB (docs/performance.md)
+PRIME_BYTES = 8 << 20
+_PRIMED = []
 
 
 #: smallest eigenvalue a proposal covariance keeps, relative to its reference scale
@@ -115,3 +127,24 @@ def spread_walkers(state, target, cov, rng, *, max_tries=20):
     raise NotConvergedError("the walkers collapsed onto one point and no spread around it "
                             "has a finite posterior density: the start is degenerate (check "
                             "the least-squares fit for parameters on a bound)")
+
+
+def prime_allocator(nbytes=PRIME_BYTES):
+    """Raise glibc malloc's trim threshold once per process, as its first large free would.
+
+    The sampler's density evaluations allocate and free numpy temporaries of 10-100 kB
+    (walkers x points) thousands of times. glibc's malloc gives the kernel back any free
+    space above 128 kB at the top of its heap (its initial trim threshold), so each
+    evaluation grew the heap again page by page, each page zero-filled by the kernel: the
+    first posterior of a process made ~8000 ``brk`` calls and 335 000 minor page faults,
+    0.8-1.0 s of system time in a call of 2.1 s of CPU (1000 mm z-known room, N = 600).
+    Freeing a block that malloc had mapped by itself raises the trim threshold to twice the
+    block's size (glibc's dynamic mmap threshold, up to 32 MiB): later calls of a process
+    did not pay this, because the point draws at the end of the first call free blocks of
+    1-19 MB. This allocates and frees ``nbytes`` at once, untouched (no page is ever
+    written), so the first call runs as the later ones. Elsewhere (another allocator) it is
+    a harmless allocation. The process may then keep up to ``2 nbytes`` of freed memory.
+    """
+    if not _PRIMED:
+        np.empty(int(nbytes) // 8)
+        _PRIMED.append(True)

@@ -32,7 +32,8 @@ from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import from_identifiable
 from .collapsed import check_walkers, posterior_outlier_prob, report_unconverged, sample_collapsed
-from .steps import BUDGET_FACTOR
+from .ensemble import prime_allocator
+from .steps import BUDGET_FACTOR, BURN_FLOOR
 
 __all__ = ["sample_plan_posterior", "benchmark_plan_posterior", "SCENE_REQUIRED"]
 
@@ -107,6 +108,7 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
         + bool(outliers)
     check_walkers(n_walkers, ndim)
     rng = resolve_rng(rng)
+    prime_allocator()                  # the first call of a process as fast as the next
     prior = as_prior(prior, camera)
     psi_map, cov_map, q_map, map_res = plan_map_start(pixels, plan, sigma_px=sigma_px,
                                                       prior=prior, init=init,
@@ -121,7 +123,8 @@ def sample_plan_posterior(pixels, plan, *, sigma_px, prior=None, rng=None, n_wal
                            min_ess=min_ess, tau_factor=tau_factor, max_steps=max_steps,
                            n_samples=n_samples, moves=moves, progress=progress,
                            n_point_mh=n_point_mh, n_iter=n_iter,
-                           n_tune=n_tune, budget=budget)
+                           n_tune=n_tune, budget=budget,
+                           burn_floor=getattr(lik, "burn_floor", BURN_FLOOR))
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px)
     post.pixel_cov = lik.pixel_cov              # per-point covariances for its model check
     report_unconverged(run["diagnostics"], post, what="the floor-plan chain",

@@ -34,9 +34,11 @@ import numpy as np
 
 from .._validation import check_positive, resolve_rng
 from ..errors import InvalidTypeError, InvalidValueError
+from ..fit.em import improbable_rows
 from ..fit.simultaneous import check_model, point_likelihood
+from ..fit.start import data_prior
 from ..likelihood.points import NOISE_BOUNDS, LaserLikelihood
-from ..likelihood.priors import Prior, as_prior
+from ..likelihood.priors import Prior
 from ..results.posterior import Posterior
 from ..scene.floorplan import FloorPlan
 from ..sensor.parameters import (
@@ -57,6 +59,7 @@ from .collapsed import (
     sample_collapsed,
 )
 from .collapsed import posterior_outlier_prob as _outlier_prob
+from .ensemble import prime_allocator
 from .floorplan import SCENE_REQUIRED, sample_plan_posterior
 from .steps import BUDGET_FACTOR, from_sampling, ring_scale, seeded_sampler, to_sampling
 
@@ -214,8 +217,11 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                       n_iter=n_iter, n_tune=n_tune, on_unconverged=on_unconverged)
     model = check_model(model)
     offset_sd = check_positive(offset_sd, "offset_sd", allow_zero=True)
-    prior = as_prior(prior, camera)
+    # no prior and no camera: the default centred on the design the data imply (the paper's
+    # sensor unless they disagree: bayescal.fit.start.data_prior, as the least squares does)
+    prior = data_prior(prior, camera, pixels, approx_points)[0]
     rng = resolve_rng(rng)
+    prime_allocator()                  # the first call of a process as fast as the next
     if budget is not None and not (isinstance(budget, (int, float, np.number))
                                    and not isinstance(budget, bool) and budget >= 1):
         raise InvalidValueError(f"budget must be None or a number >= 1 (times the projected "
@@ -251,6 +257,10 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
                            budget=budget, draw_iter=n_iter if aligned else None,
                            **(_aligned_run() if aligned else {}))
     post = _assemble(lik, prior, map_res, run, rng, sigma_px=sigma_px, sigma_scene=sigma_scene)
+    cut = map_res.extras.get("cut_rows", np.zeros(0, int))
+    if post.outlier_prob is not None and len(cut):   # the start's cut, if the posterior agrees
+        bad = improbable_rows(lik, run["psi"].mean(axis=0), run["q"].mean(axis=0))[cut]
+        post.outlier_prob[cut[bad]] = 1.0
     post.pixel_cov = None if pixel_cov is None else np.asarray(pixel_cov, float)   # its check
     _check_noise_bounds(post)
     report_unconverged(run["diagnostics"], post, what="the chain", max_steps=max_steps,
@@ -260,7 +270,8 @@ def sample_posterior(pixels, approx_points, *, sigma_px, sigma_scene=SCENE_REQUI
 
 def _aligned_run():
     """sample_collapsed's settings for the aligned cone with approximate points."""
-    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR}
+    return {"imh_weight": ALIGNED_IMH_WEIGHT, "burn_floor": ALIGNED_BURN_FLOOR,
+            "draw_stepped": True}
 
 
 def _with_offset(post, offset_sd, rng):

@@ -119,9 +119,9 @@ class CollapsedTarget:
     def __call__(self, s):
         s = np.atleast_2d(s)
         self.n_calls += len(s)
-        psi = self.coords.from_sampling(s)
+        psi, log_jac = self.coords.from_sampling_log_jacobian(s)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lp = self.log_prior(psi) + self.coords.log_jacobian(psi)
+            lp = self.log_prior(psi) + log_jac
         out = np.full(len(psi), -np.inf)
         ok = np.isfinite(lp)
         if np.any(ok):
@@ -142,46 +142,46 @@ class CollapsedTarget:
         return callable(getattr(self.lik, "grad_log_marginal", None))
 
     def _prior_value_and_grad(self, psi, eps):
-        """Log prior plus log Jacobian (W,) at psi (W, d) and its gradient (W, d) in psi by
-        forward differences (step ``eps * max(1, |psi|)``): theta's prior over theta's 7
-        entries only, the extras' (cheap) over theirs, the log Jacobian over all; each term
-        in one call for the rows and their shifted copies."""
+        """Log prior (W,) at psi (W, d) and its gradient (W, d) in psi by forward differences
+        (step ``eps * max(1, |psi|)``): theta's prior over theta's 7 entries only, the
+        extras' (cheap) over theirs; each in one call for the rows and their shifted
+        copies."""
         W, d = psi.shape
         h = eps * np.maximum(1.0, np.abs(psi))                     # (W, d)
         E = np.eye(d)[:, None, :] * h[None]                        # (d, W, d)
         x = np.concatenate([psi[None], psi[None] + E])             # (1 + d, W, d)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lj = self.coords.log_jacobian(x)                               # (1 + d, W)
             th = self.prior.logpdf_theta(x[:8, :, :7])
             ex = self.lik.log_prior_extra(np.concatenate([x[:1], x[8:]])[..., 7:])
-            value = (th[0] + ex[0]) + lj[0]             # as __call__ adds them
-            diff = lj[1:] - lj[0]                                          # (d, W)
-            diff[:7] += th[1:] - th[0]
-            diff[7:] += ex[1:] - ex[0]
-        return value, diff.T / h
+            diff = np.empty((d, W))
+            diff[:7] = th[1:] - th[0]
+            diff[7:] = ex[1:] - ex[0]
+        return th[0] + ex[0], diff.T / h
 
     def value_and_grad(self, s, eps=1e-8):
         """Log density (W,) and its gradient (W, d) in sampling coordinates.
 
-        The likelihood part is analytic (``lik.grad_log_marginal``); the prior and the
-        change-of-variables term (cheap) by forward differences in psi
-        (:meth:`_prior_value_and_grad`); both chained through ``d psi / d s``
-        (:meth:`~bayescal.mcmc.coordinates.Coordinates.inverse_jacobian`). The value is
-        exactly :meth:`__call__`'s. NaN gradient where the value is ``-inf``.
+        The likelihood part is analytic (``lik.grad_log_marginal``); the prior (cheap) by
+        forward differences in psi (:meth:`_prior_value_and_grad`); both chained through ``d
+        psi / d s`` (:meth:`~bayescal.mcmc.coordinates.Coordinates.inverse_jacobian`, whose
+        shifted copies give the change-of-variables term's gradient in ``s`` too). The
+        value is exactly :meth:`__call__`'s. NaN gradient where the value is ``-inf``.
         """
         s = np.atleast_2d(np.asarray(s, float))
         W, d = s.shape
         self.n_calls += W
         self.n_grad_calls += W
-        psi, dpsi = self.coords.inverse_jacobian(s)               # dpsi[w, k, j] = d psi_j / d s_k
+        # dpsi[w, k, j] = d psi_j / d s_k; the log Jacobian and its gradient in s
+        psi, dpsi, lj, g_lj = self.coords.inverse_jacobian(s, log_jacobian=True)
         lp, g_prior = self._prior_value_and_grad(psi, eps)
+        lp = lp + lj                                    # as __call__ adds them
         out = np.full(W, -np.inf)
         grad = np.full((W, d), np.nan)
         ok = np.isfinite(lp)
         if np.any(ok):
             ll, g_psi = self.lik.grad_log_marginal(psi[ok], self.q_start, n_iter=self.n_iter)
             out[ok] = lp[ok] + ll
-            grad[ok] = np.einsum("wkj,wj->wk", dpsi[ok], g_psi + g_prior[ok])
+            grad[ok] = np.einsum("wkj,wj->wk", dpsi[ok], g_psi + g_prior[ok]) + g_lj[ok]
         bad = ~np.isfinite(out)
         out[bad] = -np.inf
         grad[bad] = np.nan

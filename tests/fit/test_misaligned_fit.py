@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import bayescal as bc
+from bayescal.checks.misfit import ModelMisfitWarning
 from bayescal.sensor.pose import POSE_NAMES
 
 TILT = tuple(np.radians([1.0, 0.5]))
@@ -19,10 +20,27 @@ def _room(seed, *, n_points=300, sigma_px=0.2, tilt=TILT, offset=OFFSET):
 @pytest.fixture(scope="module")
 def tilted():
     ds = _room(0)
-    fits = {m: bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
-                                         sigma_scene=ds.sigma_scene, model=m)
-            for m in ("aligned", "misaligned")}
-    return ds, fits
+    # the aligned fit of a tilted cone fails its own model check: warned, not a plain success
+    with pytest.warns(ModelMisfitWarning, match="model='misaligned'"):
+        aligned = bc.calibrate_simultaneous(ds.pixels, ds.approx_points, sigma_px=0.2,
+                                            sigma_scene=ds.sigma_scene)
+    return ds, {"aligned": aligned,
+                "misaligned": bc.calibrate_simultaneous(ds.pixels, ds.approx_points,
+                                                        sigma_px=0.2, model="misaligned",
+                                                        sigma_scene=ds.sigma_scene)}
+
+
+def test_the_aligned_fit_of_a_tilted_cone_is_not_a_plain_success(tilted):
+    """Its neighbouring points' scene errors are correlated (the tilt the aligned cone
+    cannot take), so its own model check fails (a ModelMisfitWarning naming the
+    misaligned model); the misaligned fit of the same data passes (docs/robustness.md,
+    4c)."""
+    _, fits = tilted
+    al, mis = fits["aligned"], fits["misaligned"]
+    assert al.extras["model_misfit"] == ["neighbour_corr"]
+    assert al.extras["model_check"]["neighbour_corr"] < 1e-4
+    assert "model_misfit" not in mis.extras
+    assert mis.extras["model_check"]["neighbour_corr"] > 1e-4
 
 
 def test_noise_free_tilted_data_give_back_the_pose():
@@ -152,3 +170,22 @@ def test_summary_says_what_the_data_determine_of_the_pose(tilted):
     text = tilted[1]["misaligned"].summary()
     assert "tilt_x" in text and "the data narrow it" in text
     assert text.count("PRIOR-DOMINATED: the data barely see it") == 2
+
+
+@pytest.mark.slow
+def test_the_shell_exits_1_on_a_failed_model_check(tmp_path, capsys):
+    """The aligned model on a tilted cone from the shell: the result, its files and report
+    written, the reason printed with the file's lines, exit 1 (docs/robustness.md, 4c)."""
+    from bayescal.cli.main import main
+
+    ds = _room(0)
+    rows = [",".join(f"{v:.9g}" for v in (*p, *a, *s))
+            for p, a, s in zip(ds.pixels, ds.approx_points, ds.sigma_scene, strict=True)]
+    path = tmp_path / "tilted.csv"
+    path.write_text("u,v,x,y,z,sigma_x,sigma_y,sigma_z\n" + "\n".join(rows) + "\n")
+    rc = main(["calibrate", str(path), "--sigma-px", "0.2", "--model", "aligned",
+               "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert "own model check fails" in err and f"{path} lines" in err, err
+    assert (tmp_path / "out" / "result.json").exists()

@@ -1,7 +1,6 @@
-"""A fit the bad rows cannot take over (docs/robustness.md, section 4b): a singular
+"""A fit the bad rows cannot take over (docs/robustness.md, sections 4b and 4c): a singular
 information matrix does not stop the solver (fit.schur.safe_inv), and the high-breakdown
-start (fit.em._robust_start, tried when the plain start ends on a bound or lets a few rows
-set the noise) lands where the plain EM does on data it handles."""
+start (fit.em._robust_start, the path of every fit) flags the bad rows of a messy file."""
 
 import numpy as np
 import pytest
@@ -49,7 +48,7 @@ def test_the_robust_start_handles_a_messy_file_with_the_noise_inferred(room):
     lik = simul.point_likelihood("aligned", c.pixels, c.approx_points, prior, sigma_px=None,
                                  sigma_scene=None, outliers=True)
     theta0 = to_identifiable(prior.mean().to_array())
-    fit = _fit_map(lik, prior, theta0, lik.initial_q(theta0), 200, robust=True)
+    fit = _fit_map(lik, prior, theta0, lik.initial_q(theta0), 200)
     assert fit.robust
     assert np.all(fit.r[c.rows] > 0.5)
     assert np.sum(fit.r > 0.5) == len(c.rows)

@@ -49,7 +49,7 @@ _CASES = [(True, True, False, "jeffreys"), (True, True, True, "jeffreys"),
 @pytest.mark.parametrize("sigma_px, sigma_scene, outliers, point_prior", _CASES)
 def test_fused_draw_terms_are_laplaces_and_the_exact_densitys(sigma_px, sigma_scene, outliers,
                                                                point_prior):
-    from bayescal.likelihood.point_algebra import draw_log_density, draw_proposal
+    from bayescal.likelihood.point_draws import draw_log_density, draw_proposal
 
     lik, psi, q0 = _laser_case(sigma_px, sigma_scene, outliers, point_prior)
     _, qm, C = lik.laplace(psi, q0, n_iter=1)
@@ -68,6 +68,26 @@ def test_fused_draw_terms_are_laplaces_and_the_exact_densitys(sigma_px, sigma_sc
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("sigma_px, sigma_scene, outliers, point_prior", _CASES)
+def test_stepped_proposal_has_the_next_mode_and_the_last_precision(sigma_px, sigma_scene,
+                                                                   outliers, point_prior):
+    """The sampler's one-pass proposal: laplace(n_iter=1)'s mode, laplace(n_iter=0)'s
+    precision (the outlier mixture's scaling included), and exact draws all the same."""
+    from bayescal.likelihood import point_draws
+    from bayescal.likelihood.point_draws import draw_proposal
+
+    lik, psi, q0 = _laser_case(sigma_px, sigma_scene, outliers, point_prior)
+    _, q1, _ = lik.laplace(psi, q0, n_iter=1)
+    _, _, C0 = lik.laplace(psi, q0, n_iter=0)
+    x, y, (c00, c01, c11) = draw_proposal(lik, psi, q0, 1, stepped=True)
+    np.testing.assert_allclose(np.stack([x, y], -1), q1, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(np.stack([c00, c01, c11], -1),
+                               C0[..., [0, 0, 1], [0, 1, 1]], rtol=1e-10, atol=1e-12)
+    q, acc = point_draws.draw_points(lik, psi, q0, np.random.default_rng(3), n_mh=1,
+                                     n_iter=1, stepped=True)
+    assert q.shape == psi.shape[:1] + q0.shape and np.all(np.isfinite(q)) and acc > 0.5
+
+
 @pytest.mark.parametrize("sigma_px, sigma_scene, outliers, point_prior", _CASES[1:3])
 def test_fused_draws_are_the_generic_ones(monkeypatch, sigma_px, sigma_scene, outliers,
                                           point_prior):
@@ -76,7 +96,7 @@ def test_fused_draws_are_the_generic_ones(monkeypatch, sigma_px, sigma_scene, ou
     lik, psi, q0 = _laser_case(sigma_px, sigma_scene, outliers, point_prior)
     fused = point_draws.draw_points(lik, psi, q0, np.random.default_rng(3), n_mh=2, n_iter=1,
                                     batch=2)
-    monkeypatch.setattr(point_draws, "draw_proposal", lambda *args: None)    # laplace's way
+    monkeypatch.setattr(point_draws, "draw_proposal", lambda *args, **kw: None)   # laplace's way
     generic = point_draws.draw_points(lik, psi, q0, np.random.default_rng(3), n_mh=2,
                                       n_iter=1, batch=2)
     # the same random numbers, the same acceptances: the same draws to rounding

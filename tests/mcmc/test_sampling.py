@@ -395,6 +395,48 @@ def test_pose_coordinates_round_trip_and_jacobian():
     np.testing.assert_allclose(c.log_jacobian(psi), -np.log(abs(np.linalg.det(J))), rtol=1e-6)
 
 
+@pytest.mark.parametrize("kw", [dict(rho_ref=np.inf), dict(rho_ref=2000.0, frac_index=17),
+                                dict(rho_ref=2000.0, frac_index=17, pose=True),
+                                dict(rho_ref=2000.0, pose=True, ring=False)])
+def test_inverse_with_log_jacobian_is_the_two_calls(kw):
+    """The target's one-pass map gives the same floats as from_sampling, then log_jacobian."""
+    from bayescal.mcmc.coordinates import Coordinates
+
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    walls = np.c_[[1810.0, 2580.0, 2105.0], [0.71, -2.09, 2.51]].ravel()
+    psi = np.r_[th, 0.02, -0.01, 4.0, -3.0, walls, -3.0]
+    c = Coordinates(**kw)
+    rng = np.random.default_rng(3)
+    s = c.to_sampling(psi) * (1.0 + 1e-3 * rng.standard_normal((5, len(psi))))
+    got, lj = c.from_sampling_log_jacobian(s)
+    np.testing.assert_array_equal(got, c.from_sampling(s))
+    np.testing.assert_array_equal(lj, c.log_jacobian(c.from_sampling(s)))
+
+
+@pytest.mark.parametrize("kw", [dict(rho_ref=2000.0, frac_index=17),
+                                dict(rho_ref=2000.0, frac_index=17, pose=True)])
+def test_log_jacobian_gradient_in_sampling_coordinates(kw):
+    """The gradient's change-of-variables term: log |d psi / d s| as log_jacobian gives it,
+    and its gradient in s as central differences of it (every coordinate)."""
+    from bayescal.mcmc.coordinates import Coordinates
+
+    th = bc.SensorParams.paper().to_identifiable() * np.array([1.01, 1, 1, 1, 1, 1.1, 0.98])
+    walls = np.c_[[1810.0, 2580.0, 2105.0], [0.71, -2.09, 2.51]].ravel()
+    psi = np.r_[th, 0.02, -0.01, 4.0, -3.0, walls, -3.0]
+    c = Coordinates(**kw)
+    s = c.to_sampling(psi)[None]
+    got_psi, _, lj, g = c.inverse_jacobian(s, log_jacobian=True)
+    np.testing.assert_array_equal(lj, c.log_jacobian(got_psi))
+    fd = np.empty(len(psi))
+    for k in range(len(psi)):
+        e = np.zeros(len(psi))
+        e[k] = 1e-6 * max(1.0, abs(s[0, k]))
+        lo, hi = (c.log_jacobian(c.from_sampling(s[0] + sgn * e)) for sgn in (-1, 1))
+        fd[k] = (hi - lo) / (2 * e[k])
+    np.testing.assert_allclose(g[0], fd, rtol=1e-5, atol=1e-6 * np.max(np.abs(fd)))
+    assert np.count_nonzero(fd) >= 4                  # xi, H, beta, the outlier fraction
+
+
 def test_coordinates_reject_a_bad_range():
     from bayescal.mcmc.steps import Coordinates
 
