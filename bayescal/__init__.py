@@ -20,6 +20,7 @@ from .image.chessboard import board_extent, find_chessboard
 from .image.extract import LaserPixels, extract_laser
 from .image.read import read_image
 from .image.ringcv import RingCV, ring_cross_validation
+from .image.track import LaserTracker, TrackedPixels, track_laser
 from .image.views import BoardView, board_points
 from .io.boards import load_views, write_views
 from .likelihood.priors import Prior, default_pose_prior, default_prior
@@ -45,6 +46,7 @@ from .scene.board_render import render_board
 from .scene.boards import simulate_views
 from .scene.floorplan import FloorPlan
 from .scene.render import RenderTruth, render_image
+from .scene.sequence import render_sequence
 from .scene.simulate import CalibrationData, Dataset, room_walls, simulate_room
 from .sensor.camera import backproject, project
 from .sensor.laser import cone_point, pixel_azimuth, triangulate, triangulate_plane
@@ -110,6 +112,10 @@ __all__ = [
     "render_image",
     "RenderTruth",
     "extract_laser",
+    "track_laser",
+    "LaserTracker",
+    "TrackedPixels",
+    "render_sequence",
     "read_image",
     "LaserPixels",
     "ring_cross_validation",

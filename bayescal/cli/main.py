@@ -95,7 +95,9 @@ _COMMANDS = {
                 "Extract the laser centre line from an image (optionally minus a laser-off "
                 "image): one sub-pixel point per azimuth with its 2x2 covariance (px^2), "
                 "SNR and a distractor flag. Writes laser.csv (u, v, cov_uu, cov_uv, cov_vv, "
-                "snr, flagged) and overlay.png into --out."),
+                "snr, flagged) and overlay.png into --out. Several images, a folder or a "
+                "video: the ring is followed from frame to frame; laser/<frame>.csv per frame "
+                "and frames.csv (a line per frame) instead."),
     "calibrate": (op.CALIBRATE_OPTIONS, "calibrate from laser pixels and approximate points "
                   "or a rough floor plan",
                   "Calibrate the sensor. simultaneous: MAP least squares on pixels and "
@@ -153,15 +155,17 @@ def _run(args, folders):
     that :func:`main` can tell an interrupt after the commit from one before.
     """
     from ..io.outputs import OutputFolder
-    from . import camera, demo, jobs, runs
+    from . import camera, demo, frames, jobs, runs
 
     o = {k: v for k, v in vars(args).items() if k != "command"}
-    build = {"simulate": jobs.SimulateJob, "extract": jobs.ExtractJob,
+    build = {"simulate": jobs.SimulateJob, "extract": frames.FramesJob,
              "calibrate": jobs.CalibrateJob,
              "reconstruct": jobs.ReconstructJob, "report": jobs.ReportJob,
              "study": jobs.StudyJob, "demo": jobs.DemoJob,
              "calibrate-camera": camera.CameraJob}[args.command].build
-    run = {"simulate": runs.run_simulate, "extract": runs.run_extract,
+    if args.command == "extract":       # one image, or the frames of a sequence
+        build = frames.build_extract
+    run = {"simulate": runs.run_simulate, "extract": frames.run_extract,
            "calibrate": runs.run_calibrate,
            "reconstruct": runs.run_reconstruct, "report": runs.run_report,
            "study": demo.run_study, "demo": demo.run_demo,

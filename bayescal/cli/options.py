@@ -429,23 +429,23 @@ DEMO_OPTIONS = (
 )
 
 EXTRACT_OPTIONS = (
-    Opt(("image",), {"type": input_file, "help": "image with the laser on: PNG, TIFF or JPEG, "
-                     "8 or 16 bit, grey or colour"}),
+    Opt(("image",), {"type": pathlib.Path, "nargs": "+", "metavar": "IMAGE", "help": "image "
+                     "with the laser on (PNG, TIFF, JPEG, 8/16 bit, grey or colour); several, "
+                     "a folder or a video: frames of a sequence, the ring followed from "
+                     "frame to frame (docs/images.md)"}),
     Opt(("--background",), {"type": input_file, "metavar": "IMAGE", "help": "the same view "
-                             "with the laser off, subtracted first (strongly advised on "
-                             "textured walls)"}),
+                             "with the laser off, subtracted first (advised on textured walls)"}),
     Opt(("--center",), {"type": finite_float, "nargs": 2, "metavar": ("U", "V"),
-                        "help": "centre of the radial profiles, px (default: fitted to the "
-                        "ring)"}),
+                        "help": "centre of the radial profiles, px (default: fitted)"}),
     Opt(("--radius",), {"type": nonneg_float, "nargs": 2, "metavar": ("LOW", "HIGH"),
                         "help": "the ring's radius about the centre lies between LOW and "
                         "HIGH px (default: searched over the mirror's image)"}),
     Opt(("--channel",), {"type": int, "default": 0, "choices": (0, 1, 2),
                          "help": "colour channel of the laser (0 red, 1 green, 2 blue)"}),
     Opt(("--along-sd",), {"type": positive_float, "default": 5.0, "metavar": "PX",
-                          "help": "sd given to each point along the ring, px (default 5: a "
-                          "point may slide along the stripe; 1 for a floor-plan "
-                          "calibration, docs/images.md)"}),
+                          "help": "sd given to each point along the ring, px (default 5; 1 for "
+                          "a floor-plan calibration, docs/images.md)"}),
+    Opt(("--no-progress",), {"action": "store_true", "help": "no progress bar (frames)"}),
     *_out("extract"),
 )
 

@@ -17,7 +17,7 @@ from scipy.ndimage import (
 )
 
 from ..errors import ExtractionError
-from .peak import bilinear
+from .peak import bilinear, corner_sum
 from .ring import circle_fit
 
 __all__ = ["mirror_disc", "dark_core", "blob_mask", "check_ring", "check_colour", "colour_heights",
@@ -270,10 +270,12 @@ COLOUR_CORE = 4
 COLOUR_FLANK = (6, 7, 8)
 
 
-def _ridge_heights(gray, center, pixels):
+def _ridge_heights(image, background, channels, center, pixels):
     """Light (grey levels per px) of a ridge at each of ``pixels`` (N, 2) over the lower of
     its two flanks along the ray from ``center`` (:data:`COLOUR_CORE`,
-    :data:`COLOUR_FLANK`), and the value at the pixel."""
+    :data:`COLOUR_FLANK`), and the value at the pixel: a pair of (N,) arrays for each of
+    ``channels`` of ``image`` (H, W, C) (minus ``background``'s, (H, W, C) or (H, W), when
+    given), from one read of the samples' pixels."""
     d = pixels - center
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     e = d / r[:, None]
@@ -281,20 +283,32 @@ def _ridge_heights(gray, center, pixels):
     core = np.arange(-COLOUR_CORE, COLOUR_CORE + 1, dtype=float)
     offs = np.concatenate([-fl, fl, core])                        # all samples at once
     q = center + e[:, None, :] * (r[:, None] + offs[None, :])[..., None]
-    v = bilinear(gray, q[..., 0], q[..., 1])[0]                   # (N, S)
+    _, idx, wts = bilinear(image[..., channels[0]], q[..., 0], q[..., 1])
+    px = image[idx[..., 0], idx[..., 1]]                          # (N, S, 4, C)
+    bg = None if background is None else background[idx[..., 0], idx[..., 1]]
     m = len(fl)
-    low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
-    return v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]
+    out = []
+    for k in channels:
+        at = px[..., k] if bg is None else \
+            px[..., k].astype(float) - (bg[..., k] if bg.ndim == 4 else bg).astype(float)
+        v = corner_sum(at * wts)                                  # (N, S), as bilinear's
+        low = np.minimum(v[:, :m].mean(axis=1), v[:, m:2 * m].mean(axis=1))
+        out.append((v[:, 2 * m:].mean(axis=1) - low, v[:, 2 * m + COLOUR_CORE]))
+    return out
 
 
-def _grey(image, img, channel):
-    """Whether a colour image is a grey one stored in colour: its other channels within 2
-    grey levels (of 255 over the type's range) of ``channel`` at 99 % of the pixels or
-    more (exactly equal, or a grey JPEG's chroma noise)."""
-    dt = np.asarray(image).dtype
-    top = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(img.max())
+def _grey(arr, channel):
+    """Whether a colour image ``arr`` (H, W, C) is a grey one stored in colour: its other
+    channels within 2 grey levels (of 255 over the type's range) of ``channel`` at 99 % of
+    the pixels or more (exactly equal, or a grey JPEG's chroma noise). Integer images are
+    compared in integers (the same verdicts, without a float copy of the image)."""
+    integer = np.issubdtype(arr.dtype, np.integer)
+    top = float(np.iinfo(arr.dtype).max) if integer else float(arr.max())
     tol = 2.0 * max(top, 1e-12) / 255.0
-    return all(np.mean(np.abs(img[..., k] - img[..., channel]) <= tol) >= 0.99
+    wide = {1: np.int16, 2: np.int32}.get(arr.dtype.itemsize, np.int64) if integer else float
+    mine = arr[..., channel].astype(wide)
+    size = mine.size
+    return all(np.count_nonzero(np.abs(arr[..., k] - mine) <= tol) / size >= 0.99
                for k in range(3) if k != channel)
 
 
@@ -324,22 +338,22 @@ def colour_heights(image, background, channel, pixels, center, *, min_points=12)
     tuple of float or None
         ``(own, other)``.
     """
-    img = np.asarray(image, dtype=float)
-    if img.ndim != 3 or img.shape[2] < 3 or len(pixels) < min_points \
-            or _grey(image, img, channel):
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] < 3 or len(pixels) < min_points or _grey(arr, channel):
         return None
     c = np.asarray(center, dtype=float)
-    dt = np.asarray(image).dtype
-    if np.issubdtype(dt, np.integer):   # where the laser's channel clips, its height is unknown
-        pixels = pixels[_ridge_heights(img[..., channel], c, pixels)[1] < np.iinfo(dt).max - 0.5]
-        if len(pixels) < min_points:
+    order = [channel] + [k for k in range(3) if k != channel]
+    heights = _ridge_heights(arr, None if background is None else np.asarray(background),
+                             order, c, pixels)
+    if np.issubdtype(arr.dtype, np.integer):    # where the laser's channel clips, its height
+        raw = heights[0] if background is None else \
+            _ridge_heights(arr, None, [channel], c, pixels)[0]      # is unknown
+        keep = raw[1] < np.iinfo(arr.dtype).max - 0.5
+        if np.count_nonzero(keep) < min_points:
             return None
-    if background is not None:          # a grey laser-off image is taken for every channel
-        bg = np.asarray(background, dtype=float)
-        img = img - (bg[..., :3] if bg.ndim == 3 else bg[..., None])
-    own = float(np.median(_ridge_heights(img[..., channel], c, pixels)[0]))
-    other = max(float(np.median(_ridge_heights(img[..., k], c, pixels)[0]))
-                for k in range(3) if k != channel)
+        heights = [(h[keep], v[keep]) for h, v in heights]
+    own = float(np.median(heights[0][0]))
+    other = max(float(np.median(h)) for h, _ in heights[1:3])
     return own, other
 
 

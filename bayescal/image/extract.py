@@ -17,8 +17,15 @@ from .._validation import check_positive
 from ..errors import InvalidValueError
 from .doubt import check_colour, check_ring, colour_heights, is_white
 from .locate import WIDTH_JUMP, WIDTH_SAME, parts_alike, ring_candidates, stripe_widths
-from .measure import OFFSET_SD, LaserPixels, laser_signal, measure_polar, measure_ring
-from .read import read_image
+from .measure import (
+    OFFSET_SD,
+    LaserPixels,
+    laser_signal,
+    measure_polar,
+    measure_ring,
+    measure_settled,
+)
+from .read import IMAGE_SUFFIXES, read_image
 from .ring import circle_fit
 
 __all__ = ["LaserPixels", "extract_laser", "laser_frame", "IMAGE_SUFFIXES", "OFFSET_SD",
@@ -125,6 +132,9 @@ def extract_laser(image, *, background=None, center=None, channel=0, n_azimuth=N
     # the chosen ring measured afresh: the same points as measure_ring gives its path
     lp = measure_ring(signal, cand.center, cand.radii, model=cand.model, offset_sd=offset_sd,
                       **kw)
+    # on the profiles of the ring's own circle: the ring tracker reads the same ones
+    lp = measure_settled(signal, lp, center=center, n_azimuth=n_azimuth, offset_sd=offset_sd,
+                         **kw)
     if check:
         ok = ~lp.flagged
         cc, RR, _ = circle_fit(lp.pixels[ok]) if ok.sum() >= 3 else (lp.center, np.nan, None)
@@ -180,9 +190,6 @@ def _choose(cands, signal, *, colour=None, **kw):
             best = lp, cand, w
     return best[1]
 
-
-#: file suffixes read as images (a reconstruction frame given as an image is extracted)
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
 
 
 def laser_frame(path, *, center=None):

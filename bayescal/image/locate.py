@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .doubt import dark_core, mirror_disc
+from .measure import ring_azimuths
 from .peak import fit_peaks
 from .ring import (
     PATH_CAP,
@@ -24,6 +25,7 @@ from .ring import (
     ring_model,
     ring_path,
     ring_priors,
+    ring_rays,
 )
 
 __all__ = ["RingCandidate", "ring_candidates", "stripe_widths", "parts_alike", "PRIOR_TOL",
@@ -87,14 +89,15 @@ def _locate(sig, blobs, c, r_max, *, n, highpass_px, r_band=None, runner_up=Fals
     if prior is not None:
         # the ring is nearly a circle about ``c`` (radius, tolerance px): a cost for
         # straying farther from it, PRIOR_SLOPE noise sds per azimuth per px
-        far = np.maximum(np.abs(pol.radii - prior[0]) - prior[1], 0.0)
-        pol.score = pol.score - PRIOR_SLOPE * far[None, :]
+        far = np.maximum(np.abs(pol.radii[None, :] - np.reshape(prior[0], (-1, 1)))
+                         - prior[1], 0.0)
+        pol.score = pol.score - PRIOR_SLOPE * far
     pol.free = free
     # the cost comes off the capped score: a ridge scoring past the cap would otherwise pay
     # for its detour out of its excess (a rail 20 px off the ring over a quarter of it,
     # scoring 10-30 sds, tied with the ring's capped 8)
     path, closure, gain = ring_path(pol.score if prior is None else
-                                    np.minimum(free, PATH_CAP) - PRIOR_SLOPE * far[None, :],
+                                    np.minimum(free, PATH_CAP) - PRIOR_SLOPE * far,
                                     tie=free)
     rival = None
     if runner_up:
@@ -119,12 +122,19 @@ def _peaks(pol, path, score):
     best = ridge_near(pol, track, 2)
     # a sector where the path left the ring for a brighter ridge (a rail, a poster's edge
     # crossing it): the ring elsewhere predicts where it runs there; look within 1 px of that
+    # (the model through those peaks, not the path: on a bright stripe the path may run on
+    # its flank, 2 px inside the crest, over a sector, and a model 3 px off the ring flags
+    # its points there "off model": real frames' rings, 25-45 points)
     z = score[np.arange(n), path]
-    model, _ = ring_model(pol.phi, pol.radii[track], (z > 3).astype(float))
+    model, _ = ring_model(pol.phi, pol.radii[best], (z > 3).astype(float))
     stray = np.abs(pol.radii[best] - model) > 2.0
     if np.any(stray):
         near = ridge_near(pol, np.rint(model - pol.radii[0]).astype(int), 1)
-        best = np.where(stray, near, best)
+        # not where the sample near the model is the flank of the path's own peak: the ring
+        # strays 2 px from its Fourier model there (real frames' rings over 20-30 azimuths;
+        # a room's corner), and the fit on that flank is 0.5 px off its crest
+        flank = ridge_crest(pol, near, reach=4) == best
+        best = np.where(stray & ~flank, near, best)
     return best, model
 
 
@@ -239,17 +249,28 @@ def _beside(cand, *, gap=4.0, z_min=3.0):
     return _path_circle(pol, ring_path(off)[0], score=off, z_min=z_min)
 
 
+def _radius_along(p, R, c, phi):
+    """The radius (n,) px about ``c`` at which each ray of azimuth ``phi`` (n,) crosses the
+    circle of centre ``p`` (2,) and radius ``R`` px (``c`` inside it)."""
+    e = np.stack([np.cos(phi), np.sin(phi)], -1)
+    b = e @ (np.asarray(p, float) - c)
+    return b + np.sqrt(np.maximum(R ** 2 - np.sum((p - c) ** 2) + b ** 2, 0.0))
+
+
 def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, highpass_px,
                  floor):
     """The final profiles about a circle ``prior`` (centre, radius, sd; None: about ``c0``
     over the whole band) and the ring's path through them."""
     if prior is not None:
-        c = c0 if center is not None else prior[0]
+        # the profiles the measurement reads for this circle (ring_rays: its centre on a
+        # grid), the circle's radius along each of them
+        c, n = ring_rays(prior[0], prior[1], center=center, n_azimuth=n_azimuth)
         R = float(np.hypot(*(prior[0] - c)) + prior[1]) if center is not None else prior[1]
+        R_phi = _radius_along(prior[0], prior[1], c, ring_azimuths(n))
         tol = max(PRIOR_TOL[0], PRIOR_TOL[1] * prior[2])
     else:
-        c, R, tol = c0, 100.0, 8.0
-    n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
+        c, R, R_phi, tol = c0, 100.0, 100.0, 8.0
+        n = int(n_azimuth) if n_azimuth else int(np.clip(np.pi * R, 360, 3600))
     band = band0
     if prior is not None:
         band = (0.7 * R, 1.3 * R) if center is None else (0.5 * R, 1.5 * R)
@@ -257,7 +278,7 @@ def _second_pass(sig, blobs, prior, *, c0, r_max, band0, center, n_azimuth, high
     r_max = min(r_max, band[1] + highpass_px) if band is not None else r_max
     pol, k, closure, on_blob, model, _ = _locate(
         sig, blobs, c, r_max, n=n, highpass_px=highpass_px, r_band=band,
-        prior=None if center is not None else (R, tol), floor=floor)
+        prior=None if center is not None else (R_phi, tol), floor=floor)
     return RingCandidate(pol, k, model, closure, on_blob)
 
 

@@ -13,6 +13,7 @@ measurements: ``docs/images.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter, median_filter
@@ -21,12 +22,13 @@ from .._validation import check_positive
 from ..errors import InvalidValueError
 from .doubt import blob_mask
 from .noise import clutter_variance, noise_model, ring_scatter_scale, scatter_factor
-from .peak import fit_peaks, flank_baseline
+from .peak import path_peaks
 from .read import as_gray, demosaiced_blur
-from .ring import R_MIN, PolarImage, ridge_near, ring_curve, ring_model
+from .ring import R_MIN, PolarImage, ridge_near, ring_circle, ring_curve, ring_model, ring_rays
 
 __all__ = ["LaserPixels", "LaserSignal", "laser_signal", "measure_ring", "measure_polar",
-           "ring_azimuths", "OFFSET_SD", "BLOB_MARGIN", "MEASURE_MARGIN"]
+           "measure_settled", "ring_azimuths", "OFFSET_SD", "BLOB_MARGIN", "MEASURE_MARGIN",
+           "SEARCH_PX"]
 
 #: sd (px, per axis) of a displacement of the ring as a whole that the per-point covariances
 #: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
@@ -187,6 +189,32 @@ def measure_ring(signal, center, radius, *, model=None, search_px=0, min_snr=3.0
     return replace(lp, offset_sd=offset_sd, flagged=lp.flagged | gates["astray"])
 
 
+#: px within which a profile's peak is looked for about a ring's radius carried over from
+#: other profiles (:func:`measure_settled`) or from the previous frame (the ring tracker's);
+#: the path's own peak is its highest sample within 2 px of the located path
+SEARCH_PX = 2
+
+
+def measure_settled(signal, lp, *, center=None, n_azimuth=None, **kw):
+    """``lp`` (a ring :func:`measure_ring` measured) measured again on the profiles
+    :func:`~bayescal.image.ring.ring_rays` gives for its circle (of its unflagged points,
+    :func:`~bayescal.image.ring.ring_circle`) when it was measured on others: each
+    profile's peak looked for within :data:`SEARCH_PX` of the ring's radius there. Two
+    measurements of one ring (the full extractor's, the ring tracker's) then read the same
+    profiles. ``center``, ``n_azimuth`` (the user's) and ``kw`` as :func:`measure_ring`."""
+    ok = ~lp.flagged & np.all(np.isfinite(lp.pixels), axis=1)
+    if ok.sum() < 12:
+        return lp
+    c, n = ring_rays(*ring_circle(lp.pixels, ~ok), center=center, n_azimuth=n_azimuth)
+    if n == len(lp) and np.array_equal(c, lp.center):
+        return lp
+    d = lp.pixels[ok] - c
+    a = np.arctan2(d[:, 1], d[:, 0])
+    order = np.argsort(a)
+    radius = np.interp(ring_azimuths(n), a[order], np.hypot(*d.T)[order], period=2 * np.pi)
+    return measure_ring(signal, c, radius, search_px=SEARCH_PX, **kw)
+
+
 def _measure(signal, center, radius, *, model=None, search_px=0, highpass_px=15, **kw):
     """:func:`measure_ring` before the strict off-curve gate: the points and every gate's
     flags (a dict of (n,) bool; "astray" is left out of comparisons between rings)."""
@@ -203,7 +231,11 @@ def _measure(signal, center, radius, *, model=None, search_px=0, highpass_px=15,
     k = np.clip(np.rint(r - r0).astype(int), 2, len(radii) - 3)
     if search_px:
         k = ridge_near(pol, k, int(search_px))
-    model = ring_model(pol.phi, radii[k], np.ones(len(k)))[0] if model is None else model
+    if model is None:       # fitted to every n // 180-th profile: within 0.07 px of the fit
+        # to all (real frames); the gate it serves allows 3 px
+        sel = slice(None, None, max(1, len(k) // 180))
+        fit = ring_model(pol.phi[sel], radii[k][sel], np.ones(len(k))[sel])[0]
+        model = np.interp(pol.phi, pol.phi[sel], fit, period=2 * np.pi)
     return measure_polar(signal, pol, k, model, pol.sample_mask(signal.blobs), **kw)
 
 
@@ -227,6 +259,7 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
     where they stay off, a third time with a Gaussian through 3 samples instead of 5 (a
     ridge 2 px away pulls a 5-sample fit: the curve ran within 0.5 px of the truth at
     63-81 % of such points, which were 1-3 px off it, on renderer2's lamp rooms)."""
+    kw["fits"] = {}                 # each pass refits only the profiles whose peak moved
     lp, gates, curve = _points(sig, var_img, pol, k, on_blob, **kw)
     off = gates["off curve"] | gates["astray"]
     if not off.any():
@@ -241,13 +274,14 @@ def _rescued(sig, var_img, pol, k, on_blob, **kw):
 
 
 def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_floor,
-            flank=False, curve=None, narrow=None, clip=None):
+            flank=False, curve=None, narrow=None, clip=None, fits=None):
     """Sub-pixel points on the path, their covariances and flags; ``flank``: the slope of
     the peak's baseline from its flanks (on a laser-off difference, whose background is
     flat) instead of the running median's (which follows the wall texture of one image)."""
     n = len(pol.phi)
     i = np.arange(n)
-    r, var_r, height, snr, chi2, width = _fit(sig, var_img, pol, k, flank, narrow, clip)
+    r, var_r, height, snr, chi2, width = path_peaks(sig, var_img, pol, k, flank, narrow, clip,
+                                                    fits)
     # misfit beyond noise (texture under the stripe, the stripe's shape) inflates every
     # variance: the median of chi2/2 with 2 degrees of freedom is ln 2 for a fit that
     # matches; fits through a clipped sample are left out of that median (on a bright
@@ -289,7 +323,7 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
                                                                        CURVE[2] * sd_loc)
     gates["astray"] = _astray(r - curve, flagged, sd_loc, gate_px)
     flagged = flagged | gates["off curve"]
-    clutter = clutter_variance(pol, k, var_img, width, height)
+    clutter = _clutter(pol, k, var_img, width, height, fits)
     var_r = var_r + clutter
     var_r = var_r * _scatter_scale(r, var_r, ~flagged & np.isfinite(r), clutter, flank)
     pix = pol.center + r[:, None] * np.stack([np.cos(pol.phi), np.sin(pol.phi)], -1)
@@ -300,47 +334,28 @@ def _points(sig, var_img, pol, k, on_blob, *, min_snr, gate_px, along_sd, var_fl
     return lp, gates, curve
 
 
-def _fit(sig, var_img, pol, k, flank, narrow=None, clip=None):
-    """The peaks at samples ``k``: a Gaussian through 5 samples, or through the 3 middle
-    ones where ``narrow`` (n,) (a neighbouring ridge 2 px away shares a 5-sample window);
-    where the peak is clipped (``clip`` (n, K): the samples at the sensor's saturation), the
-    middle of the clipped run (:func:`_plateau`)."""
-    i = np.arange(len(pol.phi))
-    base = flank_baseline(pol.values, k, pol.base[i, k]) if flank else \
-        pol.base[i[:, None], k[:, None] + np.arange(-2, 3)[None]]
-    out = fit_peaks(sig, var_img, pol.center, pol.phi, pol.radii[k], base, sub=pol.sub)[:6]
-    if narrow is not None and narrow.any():
-        j = np.nonzero(narrow)[0]
-        sub = fit_peaks(sig, var_img, pol.center, pol.phi[j], pol.radii[k[j]], base[j, 1:4],
-                        sub=pol.sub)[:6]
-        for a, b in zip(out, sub, strict=True):
-            a[j] = b
-    if clip is not None:
-        _plateau(pol, k, clip, out)
+def _clutter(pol, k, var_img, width, height, cache):
+    """:func:`~bayescal.image.noise.clutter_variance` of each profile, taken from the last
+    pass (``cache``, a dict) where its peak (``k``, ``width``, ``height``) is the same (each
+    profile's term is its own: the same numbers)."""
+    last = cache.get("clutter") if cache is not None else None
+    if last is None:
+        out = clutter_variance(pol, k, var_img, width, height)
+    else:
+        same = (k == last[0]) & _same(width, last[1]) & _same(height, last[2])
+        out, j = last[3].copy(), np.nonzero(~same)[0]
+        if len(j):
+            sub = SimpleNamespace(high=pol.high[j], phi=pol.phi[j], radii=pol.radii,
+                                  center=pol.center)
+            out[j] = clutter_variance(sub, k[j], var_img, width[j], height[j])
+    if cache is not None:
+        cache["clutter"] = (k.copy(), width.copy(), height.copy(), out)
     return out
 
 
-def _plateau(pol, k, clipped, out):
-    """Peaks clipped at the sensor's saturation (``clipped`` (n, K): the samples there): a
-    Gaussian through a flat top is no estimate (1-1.5 px off on a third renderer's clipped
-    stripes); the middle of the run of clipped samples is, to the quantisation of its two
-    ends (variance 1/24 px^2). Updates ``out`` (r, var, height, snr, chi2, width) in
-    place."""
-    n, K = clipped.shape
-    i = np.arange(n)
-    on = clipped[i, k]
-    if not on.any():
-        return
-    j = np.arange(1, 16)
-    left = clipped[i[:, None], np.clip(k[:, None] - j[None], 0, K - 1)]
-    right = clipped[i[:, None], np.clip(k[:, None] + j[None], 0, K - 1)]
-    a = np.argmin(np.column_stack([left, np.zeros(n, bool)]), axis=1)      # run lengths
-    b = np.argmin(np.column_stack([right, np.zeros(n, bool)]), axis=1)
-    on &= (a + b >= ONE_CLIP) & (a < 15) & (b < 15)
-    r, var, _, _, chi2, _ = out
-    r[on] = pol.radii[k[on]] + 0.5 * (b[on] - a[on])
-    var[on] = 1.0 / 24.0
-    chi2[on] = np.nan
+def _same(a, b):
+    """Elementwise: equal, or both NaN."""
+    return (a == b) | (np.isnan(a) & np.isnan(b))
 
 
 #: without a laser-off image, over a textured wall, the ring's scatter about its neighbours
@@ -384,7 +399,6 @@ def _covariances(phi, r, r_smooth, var_r, along_sd):
 #: unbounded, flagged rows carried 1e4-1e16 px^2 whose 2x2 covariances rounded to
 #: indefinite)
 VAR_MAX = 100.0
-ONE_CLIP = 1
 
 
 #: a point whose peak is below DIM x the ring's median SNR is "faint" too: where the laser

@@ -1,4 +1,6 @@
-"""Score a laser extraction against the true ring of a rendered image (``renderer2.Truth2``).
+"""Score a laser extraction against the true ring of a rendered image (``renderer2.Truth2``),
+or against another extraction of the same image (:func:`agreement`: the ring tracker's
+against the full extractor's).
 
 Each extracted pixel is compared with the true ring at the same image angle about ``center``:
 its error is the radial offset from the ring, projected on the ring's normal
@@ -89,3 +91,49 @@ def score_extraction(pixels, truth, center=None, *, flagged=None, gross_px=1.0, 
         rms=float(np.sqrt(np.mean(err[good] ** 2))) if np.any(good) else nan,
         errors=err,
     )
+
+
+def agreement(a, b, *, along_px=1.5):
+    """How far two extractions of one frame agree, point by point (the tracker's against
+    the full extractor's, ``docs/images.md``).
+
+    Each point of ``a`` is paired with the point of ``b`` nearest to it if it lies within
+    ``along_px`` of it along the ring; a pair's difference is taken along ``b``'s normal
+    (the direction of its covariance's smaller eigenvalue: along the ring a point's place
+    is the chosen azimuth of its profile, not a measurement).
+
+    Parameters
+    ----------
+    a, b : LaserPixels
+    along_px : float, optional
+
+    Returns
+    -------
+    dict
+        ``pairs`` (points unflagged in both and paired), ``diff_px`` (their differences
+        along the normal, px), ``sd_ratio`` (``a``'s sd along the normal over ``b``'s),
+        ``only_a`` and ``only_b`` (paired points unflagged in one only), ``unpaired``.
+    """
+    if len(a) == 0 or len(b) == 0:
+        return dict(pairs=0, diff_px=np.zeros(0), sd_ratio=np.zeros(0), only_a=0, only_b=0,
+                    unpaired=len(a))
+    db = b.pixels - b.center
+    ab = np.arctan2(db[:, 1], db[:, 0])
+    order = np.argsort(ab)
+    da = a.pixels - b.center
+    aa = np.arctan2(da[:, 1], da[:, 0])
+    pos = np.searchsorted(ab[order], aa)
+    cand = order[np.stack([(pos - 1) % len(b), pos % len(b)], -1)]
+    dist = np.linalg.norm(a.pixels[:, None] - b.pixels[cand], axis=-1)
+    j = cand[np.arange(len(a)), np.argmin(dist, axis=1)]
+    w, v = np.linalg.eigh(b.covariance[j])
+    normal = v[..., 0]
+    delta = a.pixels - b.pixels[j]
+    across = np.abs(np.sum(delta * normal, axis=1))
+    paired = np.hypot(*delta.T) ** 2 - across ** 2 <= along_px ** 2
+    both = paired & ~a.flagged & ~b.flagged[j]
+    return dict(pairs=int(both.sum()), diff_px=across[both],
+                sd_ratio=a.sd_normal[both] / np.sqrt(np.maximum(w[both, 0], 1e-300)),
+                only_a=int(np.sum(paired & ~a.flagged & b.flagged[j])),
+                only_b=int(np.sum(paired & a.flagged & ~b.flagged[j])),
+                unpaired=int(np.sum(~paired)))
