@@ -259,6 +259,8 @@ def _value_noise(x, y, cell, seed):
     """Smooth value noise on a lattice of ``cell`` mm (cubic interpolation)."""
     r = np.random.default_rng(seed)
     gx, gy = x / cell, y / cell
+    if gx.size == 0:                    # no hit point on this patch (a poster out of view)
+        return np.zeros(0)
     x0, y0 = np.floor(gx.min()) - 2, np.floor(gy.min()) - 2
     nx, ny = int(np.ceil(gx.max() - x0)) + 4, int(np.ceil(gy.max() - y0)) + 4
     lat = r.standard_normal((nx, ny))
