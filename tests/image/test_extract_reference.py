@@ -2,10 +2,11 @@
 frames of ``../shared/data/pipe`` (skipped when the folder is absent): where no truth exists,
 two extractors that share no code must find the same ring.
 
-Measured on the eight dark frames (2026-11-28): the reference reads 691-711 of 720 azimuths
-at 0.146-0.173 px about its own curve; bayescal's unflagged points lie -0.049 to -0.012 px
-from that curve by the median (the issue's bias target is 0.1 px), robust sd 0.130-0.167 px,
-none more than 1 px off."""
+Measured on the eight dark frames (2026-11-28, the ring measured on its own circle's
+profiles): the reference reads 688-712 of 720 azimuths at 0.139-0.176 px about its own
+curve; bayescal's unflagged points lie -0.040 to -0.017 px from that curve by the median
+(the issue's bias target is 0.1 px), robust sd 0.136-0.175 px, at most 0.14 % (one point)
+more than 1 px off."""
 
 import numpy as np
 import pytest
