@@ -122,7 +122,8 @@ def misfit_run_p(misfit, rho, *, rng=0):
     Each point's misfit is divided by its expected value as a smooth function of its range
     (a quadratic in the standardised log range, fitted by least squares): a noise model
     whose scale is wrong by a factor that changes with range (relative errors inferred for
-    isotropic ones) makes far or near walls misfit alike, which is not a run. The statistic
+    isotropic ones) makes the near (or far) walls misfit more than the others, which is no
+    run of bad rows. The statistic
     is the largest sum over :data:`RUN_WIDTHS` neighbouring points, in sds about its mean;
     its p-value is that of the same statistic over random orders of the same misfits
     (:data:`_RUN_FIRST` of them, then :data:`_RUN_MORE` more when p < 0.01; smallest
