@@ -9,7 +9,7 @@ See ``docs/`` for the model, conventions and the public API.
 """
 
 from .checks.compare import ModelComparison, compare_models
-from .checks.fit import NoiseCollapseError, OffPlanWarning
+from .checks.fit import NoiseCollapseError, NoiseUndeterminedWarning, OffPlanWarning
 from .checks.inputs import DuplicateRowsWarning
 from .checks.misfit import ModelMisfitWarning
 from .errors import BayescalError, BayescalWarning, DegenerateInputError, ExtractionError
@@ -105,6 +105,7 @@ __all__ = [
     "OffPlanWarning",
     "ModelMisfitWarning",
     "NoiseCollapseError",
+    "NoiseUndeterminedWarning",
     "BayescalError",
     "BayescalWarning",
     "DegenerateInputError",

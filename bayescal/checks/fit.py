@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import BayescalError, BayescalWarning
 from .rows import rows_text as _rows_text
 
-__all__ = ["NoiseCollapseError", "check_noise_levels", "fit_problems", "robust_noise_ratio",
+__all__ = ["NoiseCollapseError", "NoiseUndeterminedWarning", "pixel_noise_ceiling",
+           "check_noise_levels", "fit_problems", "robust_noise_ratio",
            "worst_rows", "flag_untrusted", "OffPlanWarning", "off_plan_text", "DOMAIN",
            "BOUND_TOL", "PRIOR_SD_LIMIT", "NOISE_RATIO_LIMIT", "GROSS_RATIO"]
 
@@ -51,6 +52,45 @@ class NoiseCollapseError(BayescalError, ValueError):
     def __init__(self, message, *, name, value, rows):
         super().__init__(message)
         self.name, self.value, self.rows = name, value, np.asarray(rows, dtype=int)
+
+
+class NoiseUndeterminedWarning(BayescalWarning):
+    """The data do not determine the pixel noise: their likelihood is flat from the lower
+    bound up to a level beyond which it falls (:func:`pixel_noise_ceiling`); the fit was made
+    with ``sigma_px`` at that level, the largest the data allow (``result.extras
+    ["sigma_px_ceiling"]``)."""
+
+
+#: the pixel noise's ceiling: where the collapsed log likelihood has fallen this many nats
+#: below its largest value over the prior's range
+CEILING_DROP = 2.0
+
+
+def pixel_noise_ceiling(lik, psi, q, *, drop=CEILING_DROP, n=49, factor=2.0):
+    """The largest pixel noise the data allow when they do not determine it, or None.
+
+    The collapsed log likelihood (:meth:`~bayescal.likelihood.points.LaserLikelihood.laplace`
+    per point, summed) over ``sigma_px`` on a log grid of ``n`` levels across its prior's
+    range, the other parameters and the points held at the fit ``psi``, ``q``: the largest
+    level within ``drop`` nats of the best. None when that level lies within ``factor`` of
+    the upper bound (the data bound the noise on neither side), or within 10 times the lower
+    bound (the likelihood is not flat over a decade: the noise is small, not undetermined).
+    """
+    from ..likelihood.points import NOISE_BOUNDS
+
+    k = len(psi) - len(lik.extra_names) + list(lik.extra_names).index("sigma_px")
+    lo, hi = NOISE_BOUNDS["sigma_px"]
+    grid = np.geomspace(lo, hi, n)
+    ll = np.full(n, -np.inf)
+    for i, s in enumerate(grid):
+        p = np.array(psi, dtype=float)
+        p[k] = np.log(s)
+        v = float(np.sum(lik._laplace_points(p, q, 2)[0]))
+        ll[i] = v if np.isfinite(v) else -np.inf
+    if not np.isfinite(ll).any():
+        return None
+    top = grid[np.flatnonzero(ll >= np.max(ll) - drop).max()]
+    return None if top >= hi / factor or top < 10 * lo else float(top)
 
 
 def check_noise_levels(lik, psi, q, *, factor=2.0, n_rows=5):

@@ -25,7 +25,12 @@ import warnings
 import numpy as np
 
 from .._validation import check_positive
-from ..checks.fit import NoiseCollapseError, check_noise_levels
+from ..checks.fit import (
+    NoiseCollapseError,
+    NoiseUndeterminedWarning,
+    check_noise_levels,
+    pixel_noise_ceiling,
+)
 from ..checks.inputs import check_calibration_input
 from ..checks.misfit import ModelMisfitWarning, flag_misfit
 from ..errors import InvalidTypeError, InvalidValueError, UnsupportedError
@@ -256,12 +261,44 @@ def calibrate_simultaneous(pixels, approx_points, *, sigma_px, sigma_scene=_REQU
     fit = _fit_map(lik, prior, theta0, lik.initial_q(theta0), max_iter)
     result, problem = _checked(lik, prior, fit, absolute_sigma)
     if isinstance(problem, NoiseCollapseError):
-        raise problem
+        result, problem = _at_ceiling(problem, lik, fit, prior, theta0, functools.partial(
+            point_likelihood, model, pixels, approx_points, prior, sigma_scene=sigma_scene,
+            outliers=outliers, outlier_scale=outlier_scale, outlier_prior=outlier_prior),
+            sigma_px, pixel_cov, max_iter, absolute_sigma)
     result.extras["design"] = design
     if problem is not None and raise_on_failure:
         raise ConvergenceError(f"simultaneous calibration did not converge: {result.message}",
                                result=result)
     return _with_offset(result, offset_sd)
+
+
+def _at_ceiling(problem, lik, fit, prior, theta0, make_lik, sigma_px, pixel_cov, max_iter,
+                absolute_sigma):
+    """``problem``, a collapsed noise level, raised; unless the inferred pixel noise collapsed
+    to its lower bound and the data bound it from above
+    (:func:`~bayescal.checks.fit.pixel_noise_ceiling`): then a
+    :class:`~bayescal.checks.fit.NoiseUndeterminedWarning` and (result, problem) of the fit
+    from the same start with ``sigma_px`` given at that bound (``make_lik(sigma_px=)``)."""
+    ceiling = None
+    if (problem.name == "sigma_px" and sigma_px is None and pixel_cov is None
+            and problem.value <= 1.0):
+        ceiling = pixel_noise_ceiling(lik, np.concatenate([fit.sol.theta, fit.extra(lik)]),
+                                      fit.sol.q)
+    if ceiling is None:
+        raise problem
+    warnings.warn(
+        f"the pixel noise sigma_px is not determined by these data: their likelihood is flat "
+        f"from its lower bound up to about {ceiling:.3g} px and falls beyond (the inferred "
+        f"level collapsed to {problem.value:.3g} px); fitted with sigma_px = {ceiling:.3g} px, "
+        "the largest the data allow, so the sds are on the safe side. Give sigma_px if you "
+        "know it", NoiseUndeterminedWarning, stacklevel=4)
+    lik = make_lik(sigma_px=ceiling)
+    fit = _fit_map(lik, prior, theta0, lik.initial_q(theta0), max_iter)
+    result, problem = _checked(lik, prior, fit, absolute_sigma)
+    if isinstance(problem, NoiseCollapseError):
+        raise problem
+    result.extras["sigma_px_ceiling"] = ceiling
+    return result, problem
 
 
 def _ring_corr(deg, approx_points):

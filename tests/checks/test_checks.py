@@ -58,11 +58,25 @@ def test_duplicate_rows_warn_with_their_rows(room):
         _fit(room, sigma_px=0.5)                          # no duplicates: no warning
 
 
+def test_pixel_noise_the_data_bound_only_from_above_is_fitted_at_that_bound(room):
+    """A scene noise of 500 % leaves the pixel noise undetermined below about 3 px: without
+    the noise check the MAP ended at sigma_px ~ 1e-11 px and reported it as converged; it is
+    now fitted at the largest level the data allow, with a warning, and its sds are those of
+    a fit given the true 0.5 px (the scene says nothing: the priors set them)."""
+    ss = 5.0 * np.abs(room.approx_points) + 1.0
+    with pytest.warns(bc.NoiseUndeterminedWarning, match=r"not determined .* largest"):
+        res = _fit(room, sigma_scene=ss)
+    assert 1.0 < res.extras["sigma_px_ceiling"] < 5.0
+    given = _fit(room, sigma_scene=ss, sigma_px=0.5)
+    sd = np.sqrt(np.diag(res.covariance_identifiable))
+    assert np.all(sd >= 0.99 * np.sqrt(np.diag(given.covariance_identifiable)))
+
+
 def test_pixel_noise_that_the_data_cannot_fix_is_refused(room):
-    """A scene noise of 500 % leaves the pixel noise undetermined: without the check the
-    MAP ended at sigma_px ~ 1e-11 px and reported it as converged."""
+    """A scene noise of 1e5 mm: the likelihood is flat in sigma_px up to its prior's upper
+    bound, so nothing bounds it and the fit refuses, naming the rows."""
     with pytest.raises(NoiseCollapseError, match=r"sigma_px ended at .* lower bound") as ei:
-        _fit(room, sigma_scene=5.0 * np.abs(room.approx_points) + 1.0)
+        _fit(room, sigma_scene=np.full_like(room.approx_points, 1e5))
     assert ei.value.name == "sigma_px" and len(ei.value.rows) == 5
     assert isinstance(ei.value, ValueError)
 
