@@ -78,7 +78,7 @@ def pixel_noise_ceiling(lik, psi, q, *, drop=CEILING_DROP, n=49, factor=2.0):
     """
     from ..likelihood.points import NOISE_BOUNDS
 
-    k = len(psi) - len(lik.extra_names) + list(lik.extra_names).index("sigma_px")
+    k = 7 + list(lik.extra_names).index("sigma_px")       # as check_noise_levels reads it
     lo, hi = NOISE_BOUNDS["sigma_px"]
     grid = np.geomspace(lo, hi, n)
     ll = np.full(n, -np.inf)

@@ -28,7 +28,7 @@ from .ring import R_MIN, PolarImage, ridge_near, ring_circle, ring_curve, ring_m
 
 __all__ = ["LaserPixels", "LaserSignal", "laser_signal", "measure_ring", "measure_polar",
            "measure_settled", "ring_azimuths", "OFFSET_SD", "BLOB_MARGIN", "MEASURE_MARGIN",
-           "SEARCH_PX"]
+           "SEARCH_PX", "background_gray", "clip_level", "saturation_level"]
 
 #: sd (px, per axis) of a displacement of the ring as a whole that the per-point covariances
 #: leave out: wall texture under the stripe moves many neighbouring peaks the same way,
@@ -137,7 +137,7 @@ def laser_signal(image, *, background=None, channel=0):
     # with a laser-off image only the saturated pixels stay (the rest of a lamp cancels)
     blobs = blob_mask(np.where(sat, np.inf, raw), top=np.inf,
                       margin=1 if background is not None else BLOB_MARGIN)
-    return LaserSignal(sig, var, raw, sat, blobs, _clip_level(image), background is not None)
+    return LaserSignal(sig, var, raw, sat, blobs, clip_level(image), background is not None)
 
 
 def ring_azimuths(n):
@@ -447,33 +447,40 @@ def _signal(image, background, channel):
     """The laser's signal (the image, or the image minus the laser-off image), its noise
     variance per pixel, the raw image and its saturation level."""
     img = as_gray(image, channel=channel, name="image")
-    top = _saturation(image, img)
+    top = saturation_level(image, img)
     # a Bayer channel is smoothed (saturation is judged on the pixels as read)
     blur = demosaiced_blur(image, img)
     smooth = (lambda x: gaussian_filter(x, blur)) if blur else (lambda x: x)
     if background is None:
         s = smooth(img)
         return s, noise_model(s)(s), img, img >= top
-    bg = as_gray(background, channel=channel, name="background")
-    if bg.shape != img.shape:
-        raise InvalidValueError(
-            f"background must have the image's shape {img.shape}, got {bg.shape}")
+    bg = background_gray(background, channel, img.shape)
     # var(on - off) = var(on) + var(off) = 2a + b (on + off): fitted on the difference, where
     # the texture cancels, against the mean level of the two exposures
     on, off = smooth(img), smooth(bg)
     mean = 0.5 * (on + off)
     var_img = noise_model(on - off, levels=mean)(mean)
-    return on - off, var_img, img, (img >= top) | (bg >= _saturation(background, bg))
+    return on - off, var_img, img, (img >= top) | (bg >= saturation_level(background, bg))
 
 
-def _clip_level(image):
+def background_gray(background, channel, shape):
+    """The laser-off image's grey channel (:func:`~bayescal.image.read.as_gray`), checked to
+    have the image's ``shape``."""
+    bg = as_gray(background, channel=channel, name="background")
+    if bg.shape != tuple(shape):
+        raise InvalidValueError(f"background must have the image's shape {tuple(shape)}, "
+                                f"got {bg.shape}")
+    return bg
+
+
+def clip_level(image):
     """The grey level at which an integer image clips (a clipped stripe's centre is its
     plateau's middle); None for a float image (its maximum need not be a clip)."""
     integer = np.issubdtype(np.asarray(image).dtype, np.integer)
-    return _saturation(image, None) if integer else None
+    return saturation_level(image, None) if integer else None
 
 
-def _saturation(image, gray):
+def saturation_level(image, gray):
     """The grey level at which the sensor saturates: the integer type's top, else the
     image's maximum."""
     dt = np.asarray(image).dtype

@@ -33,9 +33,12 @@ from .measure import (
     SEARCH_PX,
     LaserPixels,
     LaserSignal,
+    background_gray,
+    clip_level,
     measure_ring,
     measure_settled,
     ring_azimuths,
+    saturation_level,
 )
 from .noise import noise_model
 from .peak import bilinear
@@ -272,8 +275,7 @@ highpass_px, check, offset_sd
         reach = reach + MEASURE_MARGIN + 8
         box = (slice(max(0, int(c0[1] - reach)), min(H, int(c0[1] + reach) + 1)),
                slice(max(0, int(c0[0] - reach)), min(W, int(c0[0] + reach) + 1)))
-        integer = np.issubdtype(np.asarray(image).dtype, np.integer)
-        top = _top(image, gray)
+        top, clip = saturation_level(image, gray), clip_level(image)
         on = _smoothed(gray, self._blur, box)
         step = max(2, int(round(H * W / NOISE_PIXELS)))
         rows = np.arange(step // 2 + 4, H - 4, step)
@@ -281,18 +283,15 @@ highpass_px, check, offset_sd
             model = noise_model(_strips(gray, rows, self._blur), rows=_mid(rows))
             sat = _Saturated([(gray, top)])
             return LaserSignal(on, _Variance(model, on), gray, sat,
-                               _Blobs(sat, gray, BLOB_MARGIN), top if integer else None, False)
+                               _Blobs(sat, gray, BLOB_MARGIN), clip, False)
         bg = as_frame(bg)
-        bgg = as_gray(bg, channel=self.options["channel"], name="background")
-        if bgg.shape != gray.shape:
-            raise InvalidValueError(f"background must have the image's shape {gray.shape}, "
-                                    f"got {bgg.shape}")
+        bgg = background_gray(bg, self.options["channel"], gray.shape)
         off = _smoothed(bgg, self._blur, box)
         s_on, s_off = _strips(gray, rows, self._blur), _strips(bgg, rows, self._blur)
         model = noise_model(s_on - s_off, levels=0.5 * (s_on + s_off), rows=_mid(rows))
-        sat = _Saturated([(gray, top), (bgg, _top(bg, bgg))])
+        sat = _Saturated([(gray, top), (bgg, saturation_level(bg, bgg))])
         return LaserSignal(on - off, _Variance(model, 0.5 * (on + off)), gray, sat,
-                           _Blobs(sat, gray, 1), top if integer else None, True)
+                           _Blobs(sat, gray, 1), clip, True)
 
 
 class _Variance:
@@ -352,12 +351,6 @@ def _has_core(sat, vv, uu, radius=2):
     rr = np.clip(vv[:, None] + dv[None] - radius, 0, H - 1)
     cc = np.clip(uu[:, None] + du[None] - radius, 0, W - 1)
     return bool(np.any(np.all(sat[rr, cc], axis=1)))
-
-
-def _top(image, gray):
-    """The grey level at which the sensor saturates (the full extractor's rule)."""
-    dt = np.asarray(image).dtype
-    return float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else float(gray.max())
 
 
 def _smoothed(gray, blur, box):
