@@ -48,7 +48,8 @@ def test_misaligned_plan_fit_takes_the_tilt_off_the_principal_point(tilted):
 
 def test_a_tight_plan_shows_the_misaligned_points_are_better():
     # with the room's scale known to 0.5 % the cone's tilt dominates the points' error
-    # (measured 20 vs 55 mm; with the brief's 3 % plan both are ~80 mm: the plan's scale)
+    # (measured 20 vs 55 mm; with a 3 % plan, as in the plan benchmark of
+    # docs/performance.md, both are ~80 mm: the plan's scale dominates)
     ds = _room(0, approx_error=0.005)
     fits = _fits(ds)
     err = {m: np.mean(np.linalg.norm(r.points - ds.points, axis=1)) for m, r in fits.items()}
