@@ -106,14 +106,10 @@ def _frames(job):
     """``(name, image)`` per frame; an unreadable frame is bad input (exit 2)."""
     from ..image.read import iter_frames
 
-    it = iter_frames(job.frames, channel=job.channel)
-    while True:
-        try:
-            yield next(it)
-        except StopIteration:
-            return
-        except (BayescalError, OSError) as exc:
-            raise UsageError(f"frames: {exc}") from None
+    try:
+        yield from iter_frames(job.frames, channel=job.channel)
+    except (BayescalError, OSError) as exc:
+        raise UsageError(f"frames: {exc}") from None
 
 
 def run_frames(job, folder):
@@ -128,6 +124,7 @@ def run_frames(job, folder):
     tracker = LaserTracker(background=job.background, center=job.center, channel=job.channel,
                            along_sd=job.along_sd, radius=job.radius)
     sub, rows = folder.sub("laser"), []
+    counts = {"followed": 0, "anew": 0, "refused": 0}
     with tqdm(total=job.count, desc="frames", unit="frame", file=sys.stderr,
               disable=not job.progress) as bar:
         for i, (name, img) in enumerate(_frames(job)):
@@ -143,9 +140,8 @@ def run_frames(job, folder):
                                            image_size=img.shape[1::-1],
                                            extra_note=f"\nframe {i}: {how}"))
             rows.append((name, lp, seconds))
-            bar.set_postfix(followed=sum(r[1].tracked for r in rows),
-                            anew=sum(not r[1].tracked and not r[1].refused for r in rows),
-                            refused=sum(r[1].refused for r in rows), refresh=False)
+            counts["refused" if lp.refused else "followed" if lp.tracked else "anew"] += 1
+            bar.set_postfix(**counts, refresh=False)
             bar.update(1)
     _summary(job, folder, rows)
 
