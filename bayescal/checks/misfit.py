@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import BayescalWarning
+from ..errors import BayescalWarning, InvalidValueError
 from ..likelihood.scene_noise import scene_range
 from .datafile import OUTLIER_FLAG
 from .model import _residuals, _result_data
@@ -146,6 +146,9 @@ def misfit_run_p(misfit, rho, *, rng=0):
         Indices (into ``misfit``) of the run of largest misfit.
     """
     m, rho = np.asarray(misfit, float), np.asarray(rho, float)
+    if m.ndim != 1 or rho.shape != m.shape:
+        raise InvalidValueError(f"misfit and rho must be two arrays of shape (N,), got "
+                                f"{m.shape} and {rho.shape}")
     idx = np.flatnonzero(np.isfinite(m) & np.isfinite(rho) & (rho > 0))
     widths = tuple(w for w in RUN_WIDTHS if w <= len(idx) // 4)
     if not widths:

@@ -51,6 +51,8 @@ def test_a_run_of_raised_misfit_is_found():
     m[100] = np.nan                                     # a point left out
     assert misfit_run_p(m, rho)[0] < MISFIT_ALPHA
     assert misfit_run_p(m[:20], rho[:20]) == (1.0, pytest.approx(np.zeros(0)))   # too few
+    with pytest.raises(bc.errors.InvalidValueError, match="shape"):
+        misfit_run_p(m, rho[:-1])
 
 
 def _streak_room():
